@@ -1,0 +1,339 @@
+"""The ``nsim`` command line: a thin click shell over the stages and the workspace.
+
+Strings become configs and artifact references here; the work happens in
+``nsim.stages.*.run``. User errors (:class:`~nsim.errors.NsimError`, click usage errors)
+print one line to stderr and exit 2; ``nsim verify`` exits 1 when an artifact is damaged.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import click
+
+from nsim import __version__
+from nsim.config import ConfigError, load_config
+from nsim.context import DEVICE_CHOICES, RunContext
+from nsim.errors import NsimError
+from nsim.workspace.store import Store, default_root
+
+log = logging.getLogger("nsim")
+
+
+# ------------------------------------------------------------------------------- helpers
+def _ctx(click_ctx: click.Context) -> RunContext:
+    return click_ctx.find_root().obj
+
+
+def _human_size(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if n < 1024 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GB"
+
+
+def _age(created: str | None) -> str:
+    if not created:
+        return "?"
+    try:
+        t = time.mktime(time.strptime(created, "%Y-%m-%dT%H:%M:%SZ")) - time.timezone
+    except ValueError:
+        return "?"
+    s = max(0.0, time.time() - t)
+    for unit, span in (("d", 86400), ("h", 3600), ("m", 60)):
+        if s >= span:
+            return f"{s / span:.0f}{unit}"
+    return f"{s:.0f}s"
+
+
+def stage_options(stage: str):
+    """The options every stage command shares: --preset, --config, --set, --force, --tag."""
+
+    def deco(f):
+        f = click.option("--tag", "tag", default=None, help="Also point this ref (e.g. capture/lab) at the result.")(f)
+        f = click.option("--force", is_flag=True, help="Recompute even if the run cache has this action.")(f)
+        f = click.option(
+            "--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override one config value (repeatable)."
+        )(f)
+        f = click.option(
+            "--config", "config_file", type=click.Path(dir_okay=False), default=None, help="YAML file over the preset."
+        )(f)
+        f = click.option(
+            "--preset", default="default", show_default=True, help=f"Preset from configs/{stage}/NAME.yaml."
+        )(f)
+        return f
+
+    return deco
+
+
+def resolve_config(cls: type, stage: str, preset: str, config_file: str | None, overrides: Sequence[str]) -> Any:
+    return load_config(cls, stage=stage, preset=preset, config_file=config_file, overrides=overrides)
+
+
+def report_artifact(ctx: RunContext, art_id: str, hit: bool, tag: str | None) -> None:
+    if tag:
+        ctx.store.set_ref(tag, art_id)
+    art = ctx.store.get(art_id)
+    status = "cached" if hit else "published"
+    click.echo(f"{art.kind} {art_id} ({status})", err=True)
+    click.echo(art_id)
+
+
+# ------------------------------------------------------------------------------- root group
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="nsim")
+@click.option(
+    "--workspace",
+    "-w",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Workspace root (default: $NSIM_WORKSPACE, else ./nsim-workspace).",
+)
+@click.option("--device", default="auto", show_default=True, help="Torch device: auto, cpu, cuda or cuda:N.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed for every random draw.")
+@click.option("--progress/--no-progress", default=None, help="Progress bars (default: only on a terminal).")
+@click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
+@click.pass_context
+def cli(click_ctx: click.Context, workspace: str | None, device: str, seed: int, progress: bool | None, verbose: int):
+    """nsim: a handheld video of a room in, a photorealistic robot simulator out."""
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(verbose, 2), format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
+    )
+    if device.split(":")[0].lower() not in DEVICE_CHOICES:
+        raise click.BadParameter(f"expected one of {', '.join(DEVICE_CHOICES)} or cuda:N, got {device!r}",
+                                 param_hint="--device")
+    if seed < 0:
+        raise click.BadParameter(f"expected a seed >= 0, got {seed}", param_hint="--seed")
+    root = Path(workspace) if workspace else default_root()
+    click_ctx.obj = _LazyContext(root, device, seed, progress)
+
+
+class _LazyContext:
+    """Opens the workspace only when a command needs it (``nsim --help`` creates nothing)."""
+
+    def __init__(self, root: Path, device: str, seed: int, progress: bool | None):
+        self._args = (root, device, seed, progress)
+        self._ctx: RunContext | None = None
+
+    def get(self) -> RunContext:
+        if self._ctx is None:
+            root, device, seed, progress = self._args
+            self._ctx = RunContext(store=Store(root), device_spec=device, seed=seed, progress=progress)
+        return self._ctx
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.get(), name)
+
+
+# ------------------------------------------------------------------------------- workspace commands
+@cli.command("ls")
+@click.option("--kind", default=None, help="Only artifacts of this kind.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+@click.pass_context
+def ls_cmd(click_ctx: click.Context, kind: str | None, as_json: bool):
+    """List artifacts: kind, refs, id, size, age."""
+    store = _ctx(click_ctx).store
+    by_id: dict[str, list[str]] = {}
+    for name, i in store.refs().items():
+        by_id.setdefault(i, []).append(name)
+    rows = []
+    for art in store.artifacts():
+        m = art.manifest
+        if kind and m["kind"] != kind:
+            continue
+        rows.append(
+            {
+                "kind": m["kind"],
+                "stage": m["stage"],
+                "refs": by_id.get(art.id, []),
+                "id": art.id,
+                "size_bytes": store.size_bytes(art),
+                "created_utc": m.get("timing", {}).get("created_utc"),
+            }
+        )
+    rows.sort(key=lambda r: (r["created_utc"] or "", r["id"]))
+    if as_json:
+        click.echo(json.dumps(rows, indent=1))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"nsim workspace {store.root}", title_justify="left")
+    for col in ("kind", "refs", "id", "size", "age"):
+        table.add_column(col, no_wrap=col != "refs")
+    for r in rows:
+        table.add_row(r["kind"], ", ".join(r["refs"]), r["id"][:12], _human_size(r["size_bytes"]), _age(r["created_utc"]))
+    Console(width=120 if not sys.stdout.isatty() else None).print(table)
+    for name, i in store.broken_refs().items():
+        click.echo(f"warning: ref {name} points at missing artifact {i[:12]}", err=True)
+
+
+@cli.command("show")
+@click.argument("spec")
+@click.option("--json", "as_json", is_flag=True, help="Print the manifest as JSON only.")
+@click.pass_context
+def show_cmd(click_ctx: click.Context, spec: str, as_json: bool):
+    """Show an artifact's manifest and its lineage down to the capture."""
+    store = _ctx(click_ctx).store
+    art = store.get(store.resolve(spec))
+    m = art.manifest
+    if as_json:
+        click.echo(json.dumps(m, indent=1))
+        return
+    from rich.console import Console
+    from rich.tree import Tree
+
+    con = Console()
+    refs = [n for n, i in store.refs().items() if i == art.id]
+    con.print(f"[bold]{m['kind']}[/bold] {art.id}")
+    con.print(f"  stage      {m['stage']} v{m['stage_version']}   seed {m.get('seed')}")
+    con.print(f"  refs       {', '.join(refs) or '-'}")
+    con.print(f"  size       {_human_size(store.size_bytes(art))} in {len(m['files'])} files")
+    timing = m.get("timing", {})
+    con.print(f"  created    {timing.get('created_utc')} on {timing.get('host')} in {timing.get('wall_time_s')} s")
+    con.print("  code       " + ", ".join(f"{k} {v}" for k, v in m["fingerprint"].items()))
+    con.print("  config     " + json.dumps(m["config"], sort_keys=True), soft_wrap=True)
+    if m.get("summary"):
+        con.print("  summary    " + json.dumps(m["summary"], sort_keys=True), soft_wrap=True)
+
+    def add(node: Tree, sub: dict[str, Any]) -> None:
+        for name, child in sub["inputs"].items():
+            add(node.add(f"{name}: {child['kind']} {child['id'][:12]} ({child['stage']})"), child)
+
+    lin = store.lineage(art.id)
+    tree = Tree(f"lineage: {lin['kind']} {lin['id'][:12]} ({lin['stage']})")
+    add(tree, lin)
+    con.print(tree)
+
+
+@cli.command("verify")
+@click.argument("specs", nargs=-1)
+@click.option("--rebuild", is_flag=True, help="Recompute each artifact from its inputs and compare digests.")
+@click.pass_context
+def verify_cmd(click_ctx: click.Context, specs: tuple[str, ...], rebuild: bool):
+    """Re-hash artifacts (all by default); exit 1 naming the file on any mismatch."""
+    ctx = _ctx(click_ctx)
+    store = ctx.store
+    ids = [store.resolve(s) for s in specs] if specs else store.all_ids()
+    bad = 0
+    for art_id in ids:
+        problems = store.verify(art_id)
+        if problems:
+            bad += 1
+            for p in problems:
+                click.echo(f"CORRUPT {art_id[:12]} {p}")
+            continue
+        if not rebuild:
+            click.echo(f"ok      {art_id[:12]}")
+            continue
+        from nsim.stages import stage_module
+
+        m = store.get(art_id).manifest
+        mod = stage_module(m["stage"])
+        rebuilt = mod.rebuild(m, RunContext(store, ctx.device_spec, m.get("seed") or 0, force=True, progress=ctx.progress))
+        if rebuilt == art_id:
+            click.echo(f"ok      {art_id[:12]} rebuilt identically")
+        else:
+            bad += 1
+            new = store.get(rebuilt).manifest["files"]
+            old = m["files"]
+            diff = sorted(f for f in set(old) | set(new) if old.get(f) != new.get(f))
+            shown = ", ".join(diff[:5]) + (" ..." if len(diff) > 5 else "")
+            click.echo(f"DIFFERS {art_id[:12]} rebuilt as {rebuilt[:12]}; files differ: {shown or 'manifest only'}")
+    if bad:
+        raise SystemExit(1)
+
+
+@cli.command("gc")
+@click.option("--dry-run", is_flag=True, help="Only list what would be removed.")
+@click.pass_context
+def gc_cmd(click_ctx: click.Context, dry_run: bool):
+    """Remove artifacts no ref reaches, stale run-cache entries and tmp/ debris."""
+    report = _ctx(click_ctx).store.gc(dry_run=dry_run)
+    verb = "would remove" if dry_run else "removed"
+    for i in report.objects:
+        click.echo(f"{verb} object {i[:12]}")
+    for t in report.tmp:
+        click.echo(f"{verb} tmp/{t}")
+    click.echo(
+        f"{verb} {len(report.objects)} objects ({_human_size(report.bytes_freed)}), "
+        f"{len(report.actions)} cache entries, {len(report.tmp)} tmp entries"
+    )
+
+
+@cli.command("tag")
+@click.argument("spec")
+@click.argument("name")
+@click.option("--delete", is_flag=True, help="Delete the ref NAME instead (SPEC is ignored).")
+@click.pass_context
+def tag_cmd(click_ctx: click.Context, spec: str, name: str, delete: bool):
+    """Point the ref NAME (e.g. scene/lab) at an artifact."""
+    store = _ctx(click_ctx).store
+    if delete:
+        store.delete_ref(name)
+        click.echo(f"deleted ref {name}")
+        return
+    art_id = store.resolve(spec)
+    store.set_ref(name, art_id)
+    click.echo(f"{name} -> {art_id[:12]}")
+
+
+# ------------------------------------------------------------------------------- stages
+@cli.group("capture")
+def capture_group():
+    """Captures: the built-in test room with exact ground truth."""
+
+
+@capture_group.command("synth")
+@stage_options("capture")
+@click.option("--room", default=None, help="Room preset (robot-lab, common-room, kitchen, living-room, seminar-room).")
+@click.option("--camera", default=None, help="Camera: pinhole or fisheye.")
+@click.pass_context
+def capture_synth_cmd(click_ctx, preset, config_file, overrides, force, tag, room, camera):
+    """Generate a handheld capture of the test room with exact ground truth."""
+    from nsim.stages import capture
+
+    extra = ([f"room={room}"] if room else []) + ([f"camera={camera}"] if camera else [])
+    cfg = resolve_config(capture.Config, "capture", preset, config_file, [*extra, *overrides])
+    ctx = _ctx(click_ctx).get()
+    ctx.force = force
+    out = capture.run(capture.Inputs(), cfg, ctx)
+    report_artifact(ctx, out.capture, out.cache_hit, tag)
+
+
+# ------------------------------------------------------------------------------- entry point
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console entry point: one-line errors with exit 2, verify failures exit 1."""
+    try:
+        cli.main(args=list(argv) if argv is not None else None, prog_name="nsim", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        hint = ""
+        if exc.ctx is not None and isinstance(exc, click.UsageError):
+            hint = f" (see '{exc.ctx.command_path} --help')"
+        click.echo(f"error: {exc.format_message()}{hint}", err=True)
+        return 2
+    except (NsimError, ConfigError) as exc:
+        click.echo(f"error: {exc}", err=True)
+        return 2
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        return 130
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
