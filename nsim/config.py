@@ -325,7 +325,7 @@ def _set_path(data: dict[str, Any], keys: list[str], value: Any, cls: type) -> N
             return
         cur_cls = _field_types(cur_cls)[k]
         if not dataclasses.is_dataclass(cur_cls):
-            raise ConfigError(f"{dotted}: is a value, not a section; cannot set {'.'.join(keys)}")
+            raise ConfigError(f"{'.'.join(keys)}: '{dotted}' is a value, not a section")
         child = node.get(k)
         if not isinstance(child, dict):
             child = {}
