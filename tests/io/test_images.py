@@ -87,7 +87,9 @@ def test_depth_png_mm_roundtrip_exact(tmp_path, shape):
 def test_depth_png_mm_marks_unrepresentable_depth_as_zero(tmp_path):
     depth_m = np.array([[np.nan, np.inf, -1.0, 0.0004, 0.0006, 1.2344, 65.535, 65.536]])
     path = write_depth_png_mm(tmp_path / "d.png", depth_m)
-    np.testing.assert_array_equal(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), [[0, 0, 0, 0, 1, 1234, 65535, 0]])
+    np.testing.assert_array_equal(
+        cv2.imread(str(path), cv2.IMREAD_UNCHANGED), [[0, 0, 0, 0, 1, 1234, 65535, 0]]
+    )
 
 
 def test_missing_file_is_input_error(tmp_path):
