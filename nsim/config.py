@@ -143,7 +143,7 @@ def _coerce(path: str, value: Any, tp: Any, meta: Mapping[str, Any]) -> Any:
             item_types = list(args)
             if len(value) != len(item_types):
                 raise ConfigError(f"{path}: expected a list of {len(item_types)} items, got {len(value)}")
-        return tuple(_coerce(f"{path}[{i}]", v, t, {}) for i, (v, t) in enumerate(zip(value, item_types)))
+        return tuple(_coerce(f"{path}[{i}]", v, t, {}) for i, (v, t) in enumerate(zip(value, item_types, strict=True)))
 
     if tp is bool:
         if not isinstance(value, bool):

@@ -358,7 +358,7 @@ class Store:
     @staticmethod
     def _freeze(root: Path) -> None:
         """Mark files and sub-directories read-only (the top directory is frozen after the rename)."""
-        for dirpath, dirnames, filenames in os.walk(root, topdown=False):
+        for dirpath, _dirnames, filenames in os.walk(root, topdown=False):
             for name in filenames:
                 os.chmod(os.path.join(dirpath, name), 0o444)
             if Path(dirpath) != root:

@@ -1,0 +1,220 @@
+"""``nsim capture synth``: a handheld capture of the test room with exact ground truth.
+
+The capture artifact holds what a user's phone video would give, plus everything a real
+capture cannot: exact poses, depth and the room itself (so evaluation can render the
+ground truth for any sensor at any pose through :class:`nsim.synth.oracle.RoomOracle`).
+
+Artifact layout::
+
+    transforms.json          nerfstudio convention (OpenGL camera axes), metric GT poses,
+                             intrinsics, per-frame depth_file_path and timestamp
+    images/frame_00000.png   RGB, 8-bit sRGB-ish (the room's baked shading, no tone curve)
+    depth/frame_00000.exr    float32 channel Z: z-depth in metres along the camera's +z axis
+                             (NaN where undefined: fisheye pixels beyond 90 degrees)
+    video.mp4                the frames as a video (mp4v), what `nsim reconstruct` reads
+    gt_trajectory.tum        camera-to-world poses, TUM format (a metric `--reference`)
+    room.json                the room specification (rebuilds the oracle)
+    occupancy.json           2D obstacle polygons (walls + furniture footprints), metres
+    preview.png              contact sheet and top-down view of the path over the room
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.config import from_dict, param
+from nsim.context import RunContext
+from nsim.progress import progress_bar
+from nsim.synth.room import ROOM_PRESETS
+
+STAGE = "capture"
+VERSION = 1
+CAMERAS = ("pinhole", "fisheye")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    room: str = param("robot-lab", choices=ROOM_PRESETS, help="room preset")
+    room_seed: int = param(0, ge=0, help="seed of the room layout (the path uses the run's --seed)")
+    camera: str = param("pinhole", choices=CAMERAS)
+    width: int = param(320, ge=16, le=4096)
+    height: int = param(240, ge=16, le=4096)
+    hfov_deg: float = param(75.0, gt=10.0, lt=170.0, help="pinhole horizontal field of view")
+    n_frames: int = param(150, ge=3, le=100_000)
+    fps: float = param(10.0, gt=0.0, le=240.0)
+    supersample: int = param(2, ge=1, le=8, help="sub-pixel rays per axis for anti-aliasing")
+    video: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """The test room has no input artifacts."""
+
+    def ids(self) -> dict[str, str]:
+        return {}
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    capture: str
+    cache_hit: bool = False
+
+
+def make_camera(cfg: Config):
+    from nsim.geometry.cameras import Camera
+
+    if cfg.camera == "pinhole":
+        return Camera.pinhole_from_fov(cfg.width, cfg.height, cfg.hfov_deg)
+    return Camera.fisheye_spot_like(cfg.width, cfg.height)
+
+
+def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
+    store = ctx.store
+    key = store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed)
+    if not ctx.force and (hit := store.lookup(key)) is not None:
+        return Outputs(capture=hit.id, cache_hit=True)
+
+    from nsim.synth.oracle import RoomOracle
+    from nsim.synth.path import handheld_path, timestamps_s
+    from nsim.synth.room import make_room
+
+    spec = make_room(cfg.room, cfg.room_seed)
+    camera = make_camera(cfg)
+    cam_to_world = handheld_path(spec, cfg.n_frames, seed=ctx.seed)  # (N, 4, 4) OpenCV axes
+    times_s = timestamps_s(cfg.n_frames, cfg.fps)
+    oracle = RoomOracle(spec)
+
+    with store.publish(kind="capture", stage=STAGE, version=VERSION, key=key, config=cfg, seed=ctx.seed) as out:
+        write_capture(out.dir, cfg, spec, camera, cam_to_world, times_s, oracle, ctx.show_progress)
+        out.summary.update(
+            {
+                "room": cfg.room,
+                "camera": cfg.camera,
+                "frames": cfg.n_frames,
+                "resolution": [cfg.width, cfg.height],
+            }
+        )
+    return Outputs(capture=out.ref)
+
+
+def write_capture(
+    out_dir: Path,
+    cfg: Config,
+    spec: Any,
+    camera: Any,
+    cam_to_world: np.ndarray,
+    times_s: np.ndarray,
+    oracle: Any,
+    show_progress: bool,
+) -> None:
+    """Render every frame and write the capture's files into ``out_dir``."""
+    import cv2
+
+    from nsim.io.exr import write_depth_exr
+    from nsim.io.images import to_uint8, write_image
+    from nsim.io.transforms_json import Frame, TransformsData, write_transforms
+    from nsim.io.tum import Trajectory, write_tum
+    from nsim.synth.room import occupancy_polygons, room_diagonal_m
+
+    (out_dir / "images").mkdir()
+    (out_dir / "depth").mkdir()
+    frames = []
+    writer = None
+    thumbs = []
+    if cfg.video:
+        writer = cv2.VideoWriter(
+            str(out_dir / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), float(cfg.fps), (cfg.width, cfg.height)
+        )
+        if not writer.isOpened():
+            raise RuntimeError("OpenCV could not open an mp4v video writer")
+    with progress_bar(len(cam_to_world), f"rendering {cfg.room}", show_progress) as bar:
+        for i, c2w in enumerate(cam_to_world):
+            rgb, depth_z, _ = oracle.render_gt(camera, c2w, supersample=cfg.supersample)
+            rgb_u8 = to_uint8(rgb)
+            name = f"frame_{i:05d}"
+            write_image(out_dir / "images" / f"{name}.png", rgb_u8)
+            write_depth_exr(out_dir / "depth" / f"{name}.exr", depth_z.astype(np.float32))
+            if writer is not None:
+                writer.write(cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR))
+            frames.append(
+                Frame(
+                    file_path=f"images/{name}.png",
+                    cam_to_world=c2w,
+                    camera=camera,
+                    depth_file_path=f"depth/{name}.exr",
+                    timestamp_s=float(times_s[i]),
+                )
+            )
+            if i % max(1, len(cam_to_world) // 8) == 0 and len(thumbs) < 8:
+                thumbs.append(rgb_u8)
+            bar.advance()
+    if writer is not None:
+        writer.release()
+    write_transforms(out_dir / "transforms.json", TransformsData(frames=frames, extra={"nsim_capture": STAGE}))
+    write_tum(out_dir / "gt_trajectory.tum", Trajectory.from_poses(times_s, cam_to_world))
+    (out_dir / "room.json").write_text(
+        json.dumps({"preset": cfg.room, "room_seed": cfg.room_seed, "spec": spec.to_dict()}, indent=1) + "\n"
+    )
+    polygons = occupancy_polygons(spec)
+    (out_dir / "occupancy.json").write_text(
+        json.dumps(
+            {
+                "units": "m",
+                "frame": "world, z up; polygons in the xy plane (counter-clockwise)",
+                "room_diagonal_m": room_diagonal_m(spec),
+                "polygons": [np.asarray(p, dtype=float).round(6).tolist() for p in polygons],
+            },
+            indent=1,
+        )
+        + "\n"
+    )
+    write_preview(out_dir / "preview.png", thumbs, polygons, cam_to_world, spec, cfg)
+
+
+def write_preview(path: Path, thumbs, polygons, cam_to_world: np.ndarray, spec: Any, cfg: Config) -> None:
+    """Contact sheet of a few frames beside a top-down view of the path over the obstacles."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ncol = 4
+    nrow = max(1, (len(thumbs) + ncol - 1) // ncol)
+    fig = plt.figure(figsize=(13, max(3.5, 2.3 * nrow)), dpi=80)
+    grid = fig.add_gridspec(nrow, ncol + 2)
+    for k, im in enumerate(thumbs):
+        ax = fig.add_subplot(grid[k // ncol, k % ncol])
+        ax.imshow(im)
+        ax.set_axis_off()
+    ax = fig.add_subplot(grid[:, ncol:])
+    for poly in polygons:
+        p = np.asarray(poly)
+        ax.fill(p[:, 0], p[:, 1], color="0.6", alpha=0.8, lw=0)
+    pos = cam_to_world[:, :3, 3]
+    sc = ax.scatter(pos[:, 0], pos[:, 1], c=pos[:, 2], s=6, cmap="viridis")
+    fwd = cam_to_world[:, :3, 2]
+    step = max(1, len(pos) // 30)
+    ax.quiver(pos[::step, 0], pos[::step, 1], fwd[::step, 0], fwd[::step, 1], width=0.004, scale=15, color="C3")
+    fig.colorbar(sc, ax=ax, label="camera height (m)", shrink=0.7)
+    sx, sy, _ = spec.size_xyz_m
+    ax.set_xlim(-0.3, sx + 0.3)
+    ax.set_ylim(-0.3, sy + 0.3)
+    ax.set_aspect("equal")
+    ax.set_title(f"{cfg.room}: {len(pos)} frames, {cfg.camera}")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    fig.tight_layout()
+    # Fixed metadata keeps the PNG bytes (and so the artifact id) identical across runs.
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+
+
+def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
+    cfg = from_dict(Config, manifest["config"])
+    ctx.force = True
+    return run(Inputs(), cfg, ctx).capture
