@@ -1,0 +1,921 @@
+"""Social force crowd model: humans walk their goals, avoid each other, the walls and the robot.
+
+The model (accelerations, m/s², per unit mass), one function per term, each ``(N, 2)``:
+
+* ``desired_force``: relaxation to the desired velocity, ``(v0 e - v) / tau`` (Helbing & Molnár 1995).
+* ``agent_repulsion``: anisotropic repulsion between humans, the gradient of Helbing & Molnár's
+  elliptical potential ``A B exp((r_i + r_j - b) / B)`` whose semi-minor axis ``b`` shrinks along
+  the relative motion over ``agent_lookahead_s`` (elliptical specification II, Johansson, Helbing
+  & Shukla 2007; see ``pair_repulsion``), weighted by ``w = lambda + (1 - lambda)(1 + cos phi) / 2``
+  with ``phi`` the angle between i's heading and the direction to j: people react less to what is
+  behind them. Without relative motion it is the circular ``A exp((r_i + r_j - d) / B) n w``
+  (Helbing, Farkas & Vicsek 2000). Anticipation is what lets two people walking head-on step
+  aside in time; the circular form alone lets them bump.
+* ``obstacle_repulsion``: ``A_w exp((r_i - d_iw) / B_w) n_iw`` from the nearest point of every wall
+  segment within ``obstacle_cutoff_m`` (a corner shared by two segments counts once).
+* ``robot_repulsion``: the robot (a capsule: body segment along its heading, grown by its radius)
+  seen as another human (agent law) or, for impassive humans, as an obstacle (wall law).
+* ``group_coherence``, ``group_repulsion``, ``group_gaze``: the walking-group forces of Moussaïd
+  et al. 2010 (attraction to the group's centre beyond ``(n - 1) / 2`` metres, repulsion between
+  members closer than ``r_i + r_j + group_personal_distance_m``, and a braking force ``-beta alpha v``
+  when the head must turn ``alpha`` beyond the vision half-angle to see the group's centre).
+* ``fluctuation``: a small seeded random acceleration that breaks exact symmetries (only for
+  humans who want to move: standing ones do not fidget).
+* ``behaviours.scared_repulsion``: the extra robot repulsion of scared humans.
+
+Navigation: each human walks to its current waypoint at its desired speed; before a final goal
+(or a behaviour's stop point) it brakes at ``arrival_deceleration_mps2`` (``desired_velocity``).
+
+Integration is semi-implicit Euler at a fixed step: ``v += a dt`` (speed capped at
+``max_speed_factor`` times the desired speed), then hard constraints on the displacement:
+humans are pushed out of the robot's body (the robot follows its trajectory regardless) and
+never move more than half their radius in one tick, then are projected out of the walls so their
+body never overlaps a wall segment. The velocity reported is the displacement over ``dt``.
+
+``step`` is pure (new state, inputs untouched) and deterministic for a given generator state;
+``rollout`` runs it over a replayed robot trajectory and returns per-tick arrays.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from nsim.config import param
+from nsim.crowd import behaviours as beh
+from nsim.crowd.behaviours import Behaviour, BehaviourParams, Reaction, RobotView
+from nsim.crowd.gait import advance_gait_phase, stride_length_m
+from nsim.crowd.neighbours import SegmentGrid, closest_points_on_segments, neighbour_pairs
+
+log = logging.getLogger(__name__)
+
+STAND_TOLERANCE_M = 0.05
+"""Humans stop this close to a final goal (exactly 0 desired speed within it: no creeping)."""
+
+# --------------------------------------------------------------------------------------------
+# Parameters and state
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ForceParams:
+    """Social force model parameters (accelerations per unit mass)."""
+
+    relaxation_time_s: float = param(0.5, gt=0, help="tau: time to relax to the desired velocity")
+    agent_strength_mps2: float = param(2.0, ge=0, help="A: human-human repulsion at contact")
+    agent_range_m: float = param(0.5, gt=0, help="B: decay length of the human-human repulsion")
+    anisotropy: float = param(0.3, ge=0, le=1, help="lambda: weight of what is behind (1 = isotropic)")
+    agent_lookahead_s: float = param(
+        1.0, ge=0, help="humans anticipate relative motion over this time (0 = circular)"
+    )
+    obstacle_strength_mps2: float = param(10.0, ge=0, help="A_w: wall repulsion at contact")
+    obstacle_range_m: float = param(0.2, gt=0, help="B_w: decay length of the wall repulsion")
+    group_coherence_mps2: float = param(2.0, ge=0, help="beta_2: pull towards the group's centre")
+    group_repulsion_mps2: float = param(1.0, ge=0, help="beta_3: push between members too close")
+    group_gaze_per_s: float = param(3.0, ge=0, help="beta_1: braking per radian the head must turn")
+    group_personal_distance_m: float = param(0.2, ge=0, help="members repel below r_i + r_j + this")
+    group_vision_half_angle_deg: float = param(
+        90.0, gt=0, le=180, help="half field of view for the gaze force"
+    )
+    max_speed_factor: float = param(1.3, ge=1, help="speed cap as a multiple of the desired speed")
+    agent_cutoff_m: float = param(
+        3.0, gt=0, help="humans (and the robot) farther apart than this ignore each other"
+    )
+    obstacle_cutoff_m: float = param(1.0, gt=0, help="wall segments farther than this are ignored")
+    fluctuation_mps2: float = param(0.1, ge=0, help="std of the random acceleration (symmetry breaking)")
+    goal_radius_m: float = param(0.3, gt=0, help="a goal closer than this is reached")
+    arrival_deceleration_mps2: float = param(1.0, gt=0, help="braking before a final goal or a stop point")
+    max_turn_rate_dps: float = param(360.0, gt=0, help="heading turn rate limit")
+    push_out_of_robot: bool = param(True, help="humans overlapping the robot's body are pushed out")
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """The robot at one tick, as the humans perceive it: a capsule on the floor.
+
+    position_m: (2,) centre; velocity_mps: (2,); heading_rad: yaw about +z from +x.
+    The body is the segment ``position_m +- half_length_m * (cos, sin)(heading_rad)`` grown by
+    ``radius_m`` (Spot: about 1.1 x 0.5 m -> half_length_m 0.3, radius_m 0.28).
+    """
+
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    heading_rad: float
+    radius_m: float
+    half_length_m: float = 0.0
+
+    def body_segment_m(self) -> np.ndarray:
+        """End points ``(2, 2)`` of the body's axis (a single point when ``half_length_m`` is 0)."""
+        u = np.array([math.cos(self.heading_rad), math.sin(self.heading_rad)])
+        c = np.asarray(self.position_m, dtype=np.float64)
+        return np.stack([c - self.half_length_m * u, c + self.half_length_m * u])
+
+
+@dataclass(frozen=True)
+class CrowdState:
+    """The crowd at one tick. Every per-human array has the same leading length ``N``.
+
+    Kinematics
+        time_s: float, simulation time of this tick.
+        position_m: (N, 2) float64, root position on the floor (world x, y; z up).
+        velocity_mps: (N, 2) float64, displacement over the last tick divided by ``dt_s``.
+        heading_rad: (N,) float64, facing direction (yaw about +z from +x); follows the velocity,
+            or the robot when looking at it, turning at most ``max_turn_rate_dps``.
+    Goals
+        goals_m: (N, K, 2) float64, each human's waypoints, padded to a common ``K``.
+        n_goals: (N,) int64 in [1, K], how many of ``goals_m[i]`` are real.
+        goal_index: (N,) int64, the waypoint being walked to.
+        loop_goals: (N,) bool, start again at waypoint 0 after the last; otherwise the human
+            stops at its last waypoint and ``arrived`` becomes True.
+        arrived: (N,) bool.
+    Body
+        desired_speed_mps: (N,) float64, v0. radius_m: (N,) float64, body radius.
+        height_m: (N,) float64, scales the stride length. group_id: (N,) int64, -1 = walks alone.
+    Behaviour (``nsim.crowd.behaviours``)
+        behaviour: (N,) int8 ``Behaviour`` codes. behaviour_state: (N,) int8 (0 navigating,
+        1 reacting, 2 done). behaviour_timer_s: (N,) float64, time in the current state.
+    Gait (``nsim.crowd.gait``)
+        distance_walked_m: (N,) float64. gait_phase: (N,) float64 in [0, 1).
+    """
+
+    time_s: float
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    heading_rad: np.ndarray
+    goals_m: np.ndarray
+    n_goals: np.ndarray
+    goal_index: np.ndarray
+    loop_goals: np.ndarray
+    arrived: np.ndarray
+    desired_speed_mps: np.ndarray
+    radius_m: np.ndarray
+    height_m: np.ndarray
+    group_id: np.ndarray
+    behaviour: np.ndarray
+    behaviour_state: np.ndarray
+    behaviour_timer_s: np.ndarray
+    distance_walked_m: np.ndarray
+    gait_phase: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.position_m)
+
+    @staticmethod
+    def create(
+        position_m,
+        goals_m,
+        *,
+        n_goals=None,
+        loop_goals=False,
+        velocity_mps=None,
+        heading_rad=None,
+        desired_speed_mps=1.3,
+        radius_m=0.25,
+        height_m=1.75,
+        group_id=-1,
+        behaviour=Behaviour.REGULAR,
+    ) -> CrowdState:
+        """A validated initial state; scalars broadcast to every human.
+
+        position_m: (N, 2). goals_m: (N, 2) one goal each, or (N, K, 2) waypoints (``n_goals``
+        (N,) says how many are real, default K). The heading defaults to the first goal's
+        direction, the velocity to zero. Raises ``ValueError`` naming the bad field.
+        """
+        pos = _array("position_m", position_m, np.float64)
+        if pos.ndim != 2 or pos.shape[1] != 2:
+            raise ValueError(f"position_m: expected shape (N, 2), got {pos.shape}")
+        n = len(pos)
+        goals = _array("goals_m", goals_m, np.float64)
+        if goals.ndim == 2:
+            goals = goals[:, None, :]
+        if goals.ndim != 3 or goals.shape[0] != n or goals.shape[2] != 2 or goals.shape[1] < 1:
+            raise ValueError(f"goals_m: expected shape ({n}, 2) or ({n}, K, 2), got {goals.shape}")
+        k = goals.shape[1]
+        count = _per_agent("n_goals", k if n_goals is None else n_goals, n, np.int64)
+        if np.any((count < 1) | (count > k)):
+            raise ValueError(f"n_goals: expected values in [1, {k}]")
+        if heading_rad is None:
+            d = goals[:, 0] - pos
+            heading_rad = np.arctan2(d[:, 1], d[:, 0])
+        vel = np.zeros((n, 2)) if velocity_mps is None else _array("velocity_mps", velocity_mps, np.float64)
+        if vel.shape != (n, 2):
+            raise ValueError(f"velocity_mps: expected shape ({n}, 2), got {vel.shape}")
+        codes = _per_agent("behaviour", behaviour, n, np.int8)
+        if not np.all(np.isin(codes, [b.value for b in Behaviour])):
+            raise ValueError(f"behaviour: codes must be in {[int(b) for b in Behaviour]}")
+        state = CrowdState(
+            time_s=0.0,
+            position_m=pos,
+            velocity_mps=vel,
+            heading_rad=_per_agent("heading_rad", heading_rad, n, np.float64),
+            goals_m=goals,
+            n_goals=count,
+            goal_index=np.zeros(n, np.int64),
+            loop_goals=_per_agent("loop_goals", loop_goals, n, bool),
+            arrived=np.zeros(n, bool),
+            desired_speed_mps=_per_agent("desired_speed_mps", desired_speed_mps, n, np.float64),
+            radius_m=_per_agent("radius_m", radius_m, n, np.float64),
+            height_m=_per_agent("height_m", height_m, n, np.float64),
+            group_id=_per_agent("group_id", group_id, n, np.int64),
+            behaviour=codes,
+            behaviour_state=np.zeros(n, np.int8),
+            behaviour_timer_s=np.zeros(n),
+            distance_walked_m=np.zeros(n),
+            gait_phase=np.zeros(n),
+        )
+        for name in ("desired_speed_mps", "radius_m", "height_m"):
+            if np.any(getattr(state, name) <= 0):
+                raise ValueError(f"{name}: expected values > 0")
+        for f in fields(state):
+            v = getattr(state, f.name)
+            if isinstance(v, np.ndarray) and v.dtype.kind == "f" and not np.all(np.isfinite(v)):
+                raise ValueError(f"{f.name}: expected finite values")
+        return state
+
+
+def _array(name: str, value, dtype) -> np.ndarray:
+    try:
+        return np.array(value, dtype=dtype)  # a copy: the state never aliases the caller's arrays
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected numbers, got {type(value).__name__}") from None
+
+
+def _per_agent(name: str, value, n: int, dtype) -> np.ndarray:
+    a = _array(name, value, dtype)
+    if a.ndim == 0:
+        return np.full(n, a, dtype=dtype)
+    if a.shape != (n,):
+        raise ValueError(f"{name}: expected a scalar or shape ({n},), got {a.shape}")
+    return a
+
+
+# --------------------------------------------------------------------------------------------
+# Forces: one function per term, each returning (N, 2) accelerations in m/s².
+# --------------------------------------------------------------------------------------------
+
+
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Length of 2D vectors ``(..., 2)`` -> ``(...)`` (cheaper than ``np.linalg.norm`` on small arrays)."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1])
+
+
+def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    norm = _norm(v)
+    return v / np.maximum(norm, 1e-12)[..., None], norm
+
+
+def _heading_unit(heading_rad: np.ndarray) -> np.ndarray:
+    return np.stack([np.cos(heading_rad), np.sin(heading_rad)], axis=-1)
+
+
+def _scatter(index: np.ndarray, vectors: np.ndarray, n: int) -> np.ndarray:
+    """Sum ``vectors (Q, 2)`` into ``(n, 2)`` rows ``index (Q,)`` (deterministic order)."""
+    return np.stack(
+        [
+            np.bincount(index, weights=vectors[:, 0], minlength=n),
+            np.bincount(index, weights=vectors[:, 1], minlength=n),
+        ],
+        axis=-1,
+    )
+
+
+def desired_velocity(
+    position_m: np.ndarray,
+    velocity_mps: np.ndarray,
+    target_m: np.ndarray,
+    speed_mps: np.ndarray,
+    stop_distance_m: np.ndarray,
+    slow_down: np.ndarray,
+    params: ForceParams,
+) -> np.ndarray:
+    """Desired velocity ``(N, 2)``: towards ``target_m`` at ``speed_mps``.
+
+    Where ``slow_down``, the speed is capped at ``sqrt(2 a s)`` (braking at the constant
+    ``arrival_deceleration_mps2`` = a) so the human stops ``stop_distance_m`` short of the target;
+    ``s`` is the distance left from where the human will be after the relaxation lag
+    (``tau * velocity`` further along): without that look-ahead the relaxation overshoots the stop
+    point and the human steps back.
+    """
+    e, dist = _unit(target_m - position_m)
+    closing = np.einsum("ni,ni->n", velocity_mps, e)
+    remaining = np.maximum(dist - stop_distance_m - params.relaxation_time_s * closing, 0.0)
+    braking = np.sqrt(2.0 * params.arrival_deceleration_mps2 * remaining)
+    return e * np.where(slow_down, np.minimum(speed_mps, braking), speed_mps)[:, None]
+
+
+def desired_force(
+    velocity_mps: np.ndarray, desired_velocity_mps: np.ndarray, relaxation_time_s: float
+) -> np.ndarray:
+    """Relaxation towards the desired velocity: ``(v_desired - v) / tau``, ``(N, 2)``."""
+    return (desired_velocity_mps - velocity_mps) / relaxation_time_s
+
+
+def anisotropy_weight(
+    heading_unit: np.ndarray, direction_to_other: np.ndarray, anisotropy: float
+) -> np.ndarray:
+    """``lambda + (1 - lambda)(1 + cos phi) / 2``: 1 ahead, ``lambda`` behind. ``(Q,)``.
+
+    heading_unit, direction_to_other: (Q, 2) unit vectors.
+    """
+    cos_phi = np.einsum("qi,qi->q", heading_unit, direction_to_other)
+    return anisotropy + (1.0 - anisotropy) * 0.5 * (1.0 + cos_phi)
+
+
+def _elliptical_force(
+    offset_m: np.ndarray, relative_step_m: np.ndarray, radius_sum_m: np.ndarray, params: ForceParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """``pair_repulsion`` before the anisotropy weight, and the unit vectors ``d/|d|``: ``(Q, 2)`` each.
+
+    Odd in ``(d, y)``: swapping the two humans negates it (only the anisotropy differs).
+    """
+    n_ij, dist = _unit(offset_m)
+    u, dist_y = _unit(offset_m - relative_step_m)
+    step_len = _norm(relative_step_m)
+    b = 0.5 * np.sqrt(np.maximum((dist + dist_y) ** 2 - step_len**2, 0.0))
+    mag = params.agent_strength_mps2 * np.exp((radius_sum_m - b) / params.agent_range_m)
+    scale = mag * (dist + dist_y) / (4.0 * np.maximum(b, 1e-9))  # mag * (|d| + |d - y|) / (2b) / 2
+    grad = n_ij + u
+    # on the focal segment (on a collision course within the look-ahead) the gradient vanishes:
+    # fall back to the circular direction there
+    degenerate = _norm(grad) < 1e-9
+    if np.any(degenerate):
+        grad = np.where(degenerate[:, None], n_ij, grad)
+        scale = np.where(degenerate, mag, scale)
+    return scale[:, None] * grad, n_ij
+
+
+def pair_repulsion(
+    offset_m: np.ndarray,
+    relative_step_m: np.ndarray,
+    radius_sum_m: np.ndarray,
+    heading_unit: np.ndarray,
+    params: ForceParams,
+) -> np.ndarray:
+    """Repulsion on a human from another, row-wise for Q pairs: ``(Q, 2)``.
+
+    offset_m: (Q, 2) ``d = x_i - x_j``; relative_step_m: (Q, 2) ``y = (v_j - v_i) * lookahead``;
+    radius_sum_m: (Q,) ``r_i + r_j``; heading_unit: (Q, 2) human i's facing direction.
+
+    ``-grad_d V`` of the potential ``V = A B exp((r_i + r_j - b) / B)`` (y held fixed), with ``b``
+    the semi-minor axis of the ellipse through ``d`` with foci ``0`` and ``y``,
+    ``2b = sqrt((|d| + |d - y|)^2 - |y|^2)`` (elliptical specification II, Johansson, Helbing &
+    Shukla 2007), times the anisotropy ``w(phi)``::
+
+        f = A exp((r_i + r_j - b) / B) (|d| + |d - y|) / (2b) * (d/|d| + (d - y)/|d - y|) / 2 * w
+
+    With ``y = 0`` (same velocities, or ``agent_lookahead_s = 0``) this is the circular
+    ``A exp((r_i + r_j - |d|) / B) d/|d| w``.
+    """
+    f, n_ij = _elliptical_force(offset_m, relative_step_m, radius_sum_m, params)
+    return anisotropy_weight(heading_unit, -n_ij, params.anisotropy)[:, None] * f
+
+
+def agent_repulsion(
+    position_m: np.ndarray,
+    velocity_mps: np.ndarray,
+    heading_rad: np.ndarray,
+    radius_m: np.ndarray,
+    pairs: np.ndarray,
+    params: ForceParams,
+) -> np.ndarray:
+    """Anisotropic, velocity-aware human-human repulsion summed over ``pairs (P, 2)``: ``(N, 2)``.
+
+    pairs: unordered ``i < j`` (``neighbours.neighbour_pairs``); each gives the force on i from j
+    and on j from i (``pair_repulsion``; opposite but for the anisotropy weights, so the shared
+    part is computed once per pair).
+    """
+    n = len(position_m)
+    if len(pairs) == 0:
+        return np.zeros((n, 2))
+    i, j = pairs[:, 0], pairs[:, 1]
+    f, n_ij = _elliptical_force(
+        position_m[i] - position_m[j],
+        (velocity_mps[j] - velocity_mps[i]) * params.agent_lookahead_s,
+        radius_m[i] + radius_m[j],
+        params,
+    )
+    facing = _heading_unit(heading_rad)
+    w_i = anisotropy_weight(facing[i], -n_ij, params.anisotropy)
+    w_j = anisotropy_weight(facing[j], n_ij, params.anisotropy)
+    return _scatter(np.concatenate([i, j]), np.concatenate([w_i[:, None] * f, -w_j[:, None] * f]), n)
+
+
+@dataclass(frozen=True)
+class WallContacts:
+    """Wall segments near each human, one row per distinct nearest point (Q rows).
+
+    agent: (Q,) int64; closest_m: (Q, 2); distance_m: (Q,) centre to the nearest point;
+    normal: (Q, 2) unit vector from the wall point to the centre.
+    """
+
+    agent: np.ndarray
+    closest_m: np.ndarray
+    distance_m: np.ndarray
+    normal: np.ndarray
+
+
+def wall_contacts(position_m: np.ndarray, walls: SegmentGrid, within_m: np.ndarray | float) -> WallContacts:
+    """Nearest points of the wall segments within ``within_m`` ((N,) or scalar) of each human.
+
+    Segments meeting at a corner share their nearest point there; it is kept once, so a corner
+    pushes like one wall, not two.
+    """
+    agent, seg = walls.candidates(position_m)
+    if len(agent):
+        q = closest_points_on_segments(position_m[agent], walls.segments_m[seg])
+        diff = position_m[agent] - q
+        dist = _norm(diff)
+        keep = dist < np.broadcast_to(within_m, (len(position_m),))[agent]
+        agent, q, diff, dist = agent[keep], q[keep], diff[keep], dist[keep]
+        if len(agent) > 1:
+            key = np.round(q * 1e7).astype(np.int64)
+            order = np.lexsort((key[:, 1], key[:, 0], agent))
+            agent, q, diff, dist, key = agent[order], q[order], diff[order], dist[order], key[order]
+            dup = np.zeros(len(agent), bool)
+            dup[1:] = (agent[1:] == agent[:-1]) & np.all(key[1:] == key[:-1], axis=1)
+            agent, q, diff, dist = agent[~dup], q[~dup], diff[~dup], dist[~dup]
+        normal = diff / np.maximum(dist, 1e-12)[:, None]
+        return WallContacts(agent, q, dist, normal)
+    return WallContacts(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)))
+
+
+def obstacle_repulsion(
+    position_m: np.ndarray, radius_m: np.ndarray, walls: SegmentGrid, params: ForceParams
+) -> np.ndarray:
+    """Wall repulsion ``A_w exp((r_i - d_iw) / B_w) n_iw`` summed over nearby segments: ``(N, 2)``."""
+    c = wall_contacts(position_m, walls, params.obstacle_cutoff_m)
+    mag = params.obstacle_strength_mps2 * np.exp((radius_m[c.agent] - c.distance_m) / params.obstacle_range_m)
+    return _scatter(c.agent, mag[:, None] * c.normal, len(position_m))
+
+
+def robot_view(position_m: np.ndarray, robot: RobotState) -> RobotView:
+    """Nearest point of the robot's body axis to each human and the distance to its surface."""
+    seg = robot.body_segment_m()
+    q = closest_points_on_segments(position_m, np.broadcast_to(seg, (len(position_m), 2, 2)))
+    return RobotView(q, _norm(position_m - q) - robot.radius_m)
+
+
+def robot_repulsion(
+    position_m: np.ndarray,
+    velocity_mps: np.ndarray,
+    heading_rad: np.ndarray,
+    radius_m: np.ndarray,
+    robot: RobotState,
+    view: RobotView,
+    robot_law: np.ndarray,
+    params: ForceParams,
+) -> np.ndarray:
+    """Repulsion of the robot on each human, ``(N, 2)``, by ``robot_law (N,)``.
+
+    ``ROBOT_AS_AGENT``: ``pair_repulsion`` with the robot's nearest body point as the other human
+    (radius ``robot.radius_m``, velocity ``robot.velocity_mps``); ``ROBOT_AS_OBSTACLE``: the wall
+    law from the robot's surface, blind to its motion. Zero beyond ``agent_cutoff_m``.
+    """
+    offset = position_m - view.closest_m
+    n_ir, d = _unit(offset)
+    as_agent = pair_repulsion(
+        offset,
+        (np.asarray(robot.velocity_mps)[None, :] - velocity_mps) * params.agent_lookahead_s,
+        radius_m + robot.radius_m,
+        _heading_unit(heading_rad),
+        params,
+    )
+    wall_mag = params.obstacle_strength_mps2 * np.exp(
+        (radius_m + robot.radius_m - d) / params.obstacle_range_m
+    )
+    f = np.where((robot_law == beh.ROBOT_AS_OBSTACLE)[:, None], wall_mag[:, None] * n_ir, as_agent)
+    return np.where((d < params.agent_cutoff_m)[:, None], f, 0.0)
+
+
+def _group_centres(position_m: np.ndarray, group_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per human: its group's centre of mass ``(N, 2)``, size ``(N,)``, and a mask of grouped humans."""
+    grouped = group_id >= 0
+    n = len(position_m)
+    centre = np.zeros((n, 2))
+    size = np.ones(n)
+    if np.any(grouped):
+        _, inv = np.unique(group_id[grouped], return_inverse=True)
+        count = np.bincount(inv).astype(np.float64)
+        sums = _scatter(inv, position_m[grouped], len(count))
+        centre[grouped] = (sums / count[:, None])[inv]
+        size[grouped] = count[inv]
+    return centre, size, grouped & (size > 1)
+
+
+def group_coherence(position_m: np.ndarray, group_id: np.ndarray, params: ForceParams) -> np.ndarray:
+    """Attraction ``beta_2 U_i`` to the group's centre when farther than ``(n - 1) / 2`` m: ``(N, 2)``."""
+    centre, size, grouped = _group_centres(position_m, group_id)
+    u, dist = _unit(centre - position_m)
+    on = grouped & (dist > (size - 1.0) / 2.0)
+    return np.where(on[:, None], params.group_coherence_mps2 * u, 0.0)
+
+
+def group_repulsion(
+    position_m: np.ndarray, radius_m: np.ndarray, group_id: np.ndarray, pairs: np.ndarray, params: ForceParams
+) -> np.ndarray:
+    """Repulsion ``beta_3 W_ik`` between group members closer than ``r_i + r_k + d_personal``: ``(N, 2)``."""
+    n = len(position_m)
+    if len(pairs) == 0:
+        return np.zeros((n, 2))
+    i, k = pairs[:, 0], pairs[:, 1]
+    same = (group_id[i] >= 0) & (group_id[i] == group_id[k])
+    i, k = i[same], k[same]
+    w, d = _unit(position_m[i] - position_m[k])  # from k to i
+    on = d < radius_m[i] + radius_m[k] + params.group_personal_distance_m
+    f = params.group_repulsion_mps2 * w[on]
+    return _scatter(np.concatenate([i[on], k[on]]), np.concatenate([f, -f]), n)
+
+
+def group_gaze(
+    position_m: np.ndarray,
+    velocity_mps: np.ndarray,
+    heading_rad: np.ndarray,
+    group_id: np.ndarray,
+    params: ForceParams,
+) -> np.ndarray:
+    """Braking ``-beta_1 alpha v_i`` when the head must turn ``alpha`` (rad) past the vision
+    half-angle to see the group's centre (Moussaïd et al. 2010): ``(N, 2)``."""
+    centre, _, grouped = _group_centres(position_m, group_id)
+    u, dist = _unit(centre - position_m)
+    cos_a = np.clip(np.einsum("ni,ni->n", _heading_unit(heading_rad), u), -1.0, 1.0)
+    alpha = np.maximum(np.arccos(cos_a) - np.deg2rad(params.group_vision_half_angle_deg), 0.0)
+    on = grouped & (dist > 1e-9)
+    return np.where(on[:, None], -params.group_gaze_per_s * alpha[:, None] * velocity_mps, 0.0)
+
+
+def fluctuation(rng: np.random.Generator, n: int, params: ForceParams) -> np.ndarray:
+    """Random acceleration ``N(0, fluctuation_mps2²)`` per axis: ``(N, 2)`` (drawn even when 0, so
+    the generator advances identically whatever the setting)."""
+    return params.fluctuation_mps2 * rng.standard_normal((n, 2))
+
+
+# --------------------------------------------------------------------------------------------
+# Constraints
+# --------------------------------------------------------------------------------------------
+
+
+def push_out_of_robot(position_m: np.ndarray, radius_m: np.ndarray, robot: RobotState) -> np.ndarray:
+    """Displacement ``(N, 2)`` that moves each human's body out of the robot's body."""
+    view = robot_view(position_m, robot)
+    n_ir, d = _unit(position_m - view.closest_m)
+    depth = np.maximum(radius_m + robot.radius_m - d, 0.0)
+    return depth[:, None] * n_ir
+
+
+def keep_out_of_walls(
+    position_m: np.ndarray, radius_m: np.ndarray, walls: SegmentGrid, iterations: int = 4
+) -> np.ndarray:
+    """Project humans out of the walls so no body overlaps a segment: new ``(N, 2)`` positions.
+
+    Each iteration pushes every overlapping human along the normals of its contacts by the
+    overlap depths (summed, corners counted once). Correct when humans started the tick
+    clear of the walls and moved less than their radius (``step`` guarantees both).
+    """
+    pos = position_m.copy()
+    active = np.arange(len(pos))
+    for _ in range(iterations):
+        if len(active) == 0:
+            break
+        c = wall_contacts(pos[active], walls, radius_m[active])
+        if len(c.agent) == 0:
+            break
+        depth = radius_m[active][c.agent] - c.distance_m
+        push = _scatter(c.agent, depth[:, None] * c.normal, len(active))
+        pos[active] += push
+        active = active[np.unique(c.agent)]
+    return pos
+
+
+# --------------------------------------------------------------------------------------------
+# Step and rollout
+# --------------------------------------------------------------------------------------------
+
+
+def _turn_towards(heading_rad: np.ndarray, target_rad: np.ndarray, max_step_rad: float) -> np.ndarray:
+    delta = (target_rad - heading_rad + np.pi) % (2.0 * np.pi) - np.pi
+    return (heading_rad + np.clip(delta, -max_step_rad, max_step_rad) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def step(
+    state: CrowdState,
+    robot: RobotState | None,
+    walls: SegmentGrid | np.ndarray,
+    forces: ForceParams,
+    behaviours: BehaviourParams,
+    dt_s: float,
+    rng: np.random.Generator,
+) -> CrowdState:
+    """Advance the crowd by ``dt_s``: a new ``CrowdState`` (``state`` is not modified).
+
+    robot: the robot at this tick, or None. walls: a ``SegmentGrid`` (build it once with
+    ``make_walls``) or raw segments ``(M, 2, 2)``. rng: the only source of randomness.
+    """
+    if not dt_s > 0:
+        raise ValueError(f"dt_s: expected > 0, got {dt_s!r}")
+    if not isinstance(walls, SegmentGrid):
+        walls = make_walls(walls, forces, state.radius_m)
+    elif walls.reach_m < max(forces.obstacle_cutoff_m, float(state.radius_m.max(initial=0.0))):
+        raise ValueError(
+            f"walls: indexed for {walls.reach_m} m, less than the force cutoff or a body radius "
+            "(use make_walls)"
+        )
+    n = state.n
+    pos, vel, heading = state.position_m, state.velocity_mps, state.heading_rad
+    rows = np.arange(n)
+
+    # --- behaviours: perception, state machine, reactions
+    view = robot_view(pos, robot) if robot is not None else None
+    if view is not None:
+        detected = beh.robot_detected(pos, heading, view, walls.segments_m, behaviours)
+        b_state, b_timer = beh.update_behaviour_states(
+            state.behaviour, state.behaviour_state, state.behaviour_timer_s, detected, view, behaviours, dt_s
+        )
+    else:
+        b_state, b_timer = np.zeros(n, np.int8), state.behaviour_timer_s + dt_s
+        b_timer = np.where(state.behaviour_state == 0, b_timer, 0.0)
+    react: Reaction = beh.behaviour_reactions(state.behaviour, b_state, pos, robot, view, behaviours)
+
+    # --- navigation target and desired velocity
+    goal = state.goals_m[rows, state.goal_index]
+    final = ~state.loop_goals & (state.goal_index == state.n_goals - 1)
+    v_desired = desired_velocity(  # arrived humans keep to their last goal
+        pos,
+        vel,
+        np.where(react.override[:, None], react.target_m, goal),
+        np.where(react.override, react.target_speed_mps, state.desired_speed_mps),
+        np.where(react.override, react.stop_distance_m, STAND_TOLERANCE_M),
+        react.override | final,
+        forces,
+    )
+    v_desired = v_desired * react.speed_factor[:, None]
+
+    # --- forces
+    pairs = neighbour_pairs(pos, forces.agent_cutoff_m)
+    acc = desired_force(vel, v_desired, forces.relaxation_time_s)
+    acc = acc + agent_repulsion(pos, vel, heading, state.radius_m, pairs, forces)
+    acc = acc + obstacle_repulsion(pos, state.radius_m, walls, forces)
+    if robot is not None:
+        acc = acc + robot_repulsion(pos, vel, heading, state.radius_m, robot, view, react.robot_law, forces)
+        acc = acc + beh.scared_repulsion(pos, view, react.scared, behaviours)
+    if np.any(state.group_id >= 0):
+        acc = acc + group_coherence(pos, state.group_id, forces)
+        acc = acc + group_repulsion(pos, state.radius_m, state.group_id, pairs, forces)
+        acc = acc + group_gaze(pos, vel, heading, state.group_id, forces)
+    walking = _norm(v_desired) > 0.0  # standing humans do not fidget
+    acc = acc + np.where(walking[:, None], fluctuation(rng, n, forces), 0.0)
+
+    # --- integrate (semi-implicit Euler), speed cap, hard constraints
+    v_new = vel + acc * dt_s
+    v_cap = forces.max_speed_factor * np.maximum(
+        state.desired_speed_mps, np.where(react.override, react.target_speed_mps, 0.0)
+    )
+    u, speed = _unit(v_new)
+    v_new = u * np.minimum(speed, v_cap)[:, None]
+    disp = v_new * dt_s
+    if robot is not None and forces.push_out_of_robot:
+        disp = disp + push_out_of_robot(pos + disp, state.radius_m, robot)
+    u, length = _unit(disp)
+    disp = u * np.minimum(length, 0.5 * state.radius_m)[:, None]
+    new_pos = keep_out_of_walls(pos + disp, state.radius_m, walls)
+    moved = new_pos - pos
+    new_vel = moved / dt_s
+
+    # --- heading: towards the robot when looking at it, else along the walking direction
+    walked = _norm(moved)
+    new_speed = walked / dt_s
+    target_heading = np.where(new_speed > 0.1, np.arctan2(new_vel[:, 1], new_vel[:, 0]), heading)
+    if view is not None:
+        to_robot = view.closest_m - pos
+        target_heading = np.where(
+            react.look_at_robot, np.arctan2(to_robot[:, 1], to_robot[:, 0]), target_heading
+        )
+    new_heading = _turn_towards(heading, target_heading, np.deg2rad(forces.max_turn_rate_dps) * dt_s)
+
+    # --- goals: next waypoint, loop, or arrive
+    reached = ~state.arrived & (_norm(new_pos - goal) <= forces.goal_radius_m)
+    last = state.goal_index == state.n_goals - 1
+    goal_index = np.where(reached & ~last, state.goal_index + 1, state.goal_index)
+    goal_index = np.where(reached & last & state.loop_goals, 0, goal_index)
+    arrived = state.arrived | (reached & last & ~state.loop_goals)
+
+    # --- gait: phase advances with the distance walked
+    stride = stride_length_m(new_speed, state.height_m)
+    return replace(
+        state,
+        time_s=state.time_s + dt_s,
+        position_m=new_pos,
+        velocity_mps=new_vel,
+        heading_rad=new_heading,
+        goal_index=goal_index,
+        arrived=arrived,
+        behaviour_state=b_state,
+        behaviour_timer_s=b_timer,
+        distance_walked_m=state.distance_walked_m + walked,
+        gait_phase=advance_gait_phase(state.gait_phase, walked, stride),
+    )
+
+
+def make_walls(
+    segments_m: np.ndarray, forces: ForceParams, radius_m: np.ndarray | float = 0.25
+) -> SegmentGrid:
+    """Index wall segments ``(M, 2, 2)`` for ``step``: reach covers the force cutoff and the bodies."""
+    reach = max(forces.obstacle_cutoff_m, float(np.max(radius_m, initial=0.0)) * 1.5)
+    return SegmentGrid.build(np.asarray(segments_m, dtype=np.float64).reshape(-1, 2, 2), reach)
+
+
+@dataclass(frozen=True)
+class RobotTrack:
+    """The robot's replayed trajectory, one sample per tick (``T`` ticks, ``t_k = k dt``).
+
+    position_m: (T, 2); heading_rad: (T,); body: see ``RobotState``. Velocities are central
+    differences of the positions (one-sided at the ends).
+    """
+
+    position_m: np.ndarray
+    heading_rad: np.ndarray
+    radius_m: float
+    half_length_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        p = np.array(self.position_m, dtype=np.float64)
+        h = np.array(self.heading_rad, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2 or len(p) < 1:
+            raise ValueError(f"position_m: expected shape (T >= 1, 2), got {p.shape}")
+        if h.shape != (len(p),):
+            raise ValueError(f"heading_rad: expected shape ({len(p)},), got {h.shape}")
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(h))):
+            raise ValueError("robot track: expected finite positions and headings")
+        if not (self.radius_m > 0 and self.half_length_m >= 0):
+            raise ValueError("robot track: expected radius_m > 0 and half_length_m >= 0")
+        object.__setattr__(self, "position_m", p)
+        object.__setattr__(self, "heading_rad", h)
+
+    def __len__(self) -> int:
+        return len(self.position_m)
+
+    def velocity_mps(self, dt_s: float) -> np.ndarray:
+        if len(self.position_m) < 2:
+            return np.zeros_like(self.position_m)
+        return np.gradient(self.position_m, dt_s, axis=0)
+
+    @staticmethod
+    def resample(
+        times_s: np.ndarray,
+        position_m: np.ndarray,
+        heading_rad: np.ndarray,
+        dt_s: float,
+        n_ticks: int,
+        **body,
+    ) -> RobotTrack:
+        """Sample a timed trajectory (increasing ``times_s (S,)``) at ``t_k = k dt``, ``k < n_ticks``.
+
+        Linear interpolation (headings unwrapped first); before the first / after the last sample
+        the robot holds that pose.
+        """
+        t = np.asarray(times_s, dtype=np.float64)
+        if t.ndim != 1 or len(t) < 1 or np.any(np.diff(t) <= 0):
+            raise ValueError("times_s: expected a strictly increasing 1D array")
+        p = np.asarray(position_m, dtype=np.float64)
+        h = np.unwrap(np.asarray(heading_rad, dtype=np.float64))
+        tick = np.arange(n_ticks) * dt_s
+        xy = np.stack([np.interp(tick, t, p[:, 0]), np.interp(tick, t, p[:, 1])], axis=-1)
+        yaw = (np.interp(tick, t, h) + np.pi) % (2.0 * np.pi) - np.pi
+        return RobotTrack(xy, yaw, **body)
+
+
+@dataclass(frozen=True)
+class CrowdTrajectory:
+    """Per-tick output of ``rollout``: ``T = n_steps + 1`` ticks (the initial state included).
+
+    time_s: (T,). Humans: position_m (T, N, 2), velocity_mps (T, N, 2), heading_rad (T, N),
+    behaviour_state (T, N) int8, gait_phase (T, N), goal_index (T, N) int64, plus the constant
+    radius_m (N,), behaviour (N,) int8, group_id (N,). Robot (zeros and NaN-free even without a
+    robot; ``has_robot`` says): robot_position_m (T, 2), robot_velocity_mps (T, 2),
+    robot_heading_rad (T,), robot_radius_m, robot_half_length_m.
+    The humans at tick k+1 are the result of stepping tick k against the robot at tick k.
+    """
+
+    time_s: np.ndarray
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    heading_rad: np.ndarray
+    behaviour_state: np.ndarray
+    gait_phase: np.ndarray
+    goal_index: np.ndarray
+    radius_m: np.ndarray
+    behaviour: np.ndarray
+    group_id: np.ndarray
+    has_robot: bool
+    robot_position_m: np.ndarray
+    robot_velocity_mps: np.ndarray
+    robot_heading_rad: np.ndarray
+    robot_radius_m: float
+    robot_half_length_m: float
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        """Plain arrays by field name (scalars as 0-d arrays), e.g. for ``np.savez``."""
+        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+
+    @staticmethod
+    def from_arrays(arrays) -> CrowdTrajectory:
+        """Inverse of ``as_arrays`` (accepts an ``np.load`` result); ``KeyError`` names a missing field."""
+        kw = {}
+        for f in fields(CrowdTrajectory):
+            a = np.asarray(arrays[f.name])
+            kw[f.name] = a.item() if a.ndim == 0 else a.copy()
+        kw["has_robot"] = bool(kw["has_robot"])
+        kw["robot_radius_m"] = float(kw["robot_radius_m"])
+        kw["robot_half_length_m"] = float(kw["robot_half_length_m"])
+        return CrowdTrajectory(**kw)
+
+
+def rollout(
+    state: CrowdState,
+    n_steps: int,
+    dt_s: float,
+    *,
+    walls_m: np.ndarray | None = None,
+    robot: RobotTrack | None = None,
+    forces: ForceParams | None = None,
+    behaviours: BehaviourParams | None = None,
+    seed: int = 0,
+) -> CrowdTrajectory:
+    """Run ``n_steps`` fixed steps from ``state``; same inputs and seed -> identical output.
+
+    walls_m: wall segments (M, 2, 2) (``neighbours.segments_from_polygons``). robot: sampled at
+    every tick, ``len(robot) >= n_steps + 1``; the humans at tick k react to the robot at tick k.
+    forces / behaviours: defaults when None.
+    """
+    forces = forces if forces is not None else ForceParams()
+    behaviours = behaviours if behaviours is not None else BehaviourParams()
+    if n_steps < 0:
+        raise ValueError(f"n_steps: expected >= 0, got {n_steps}")
+    if robot is not None and len(robot) < n_steps + 1:
+        raise ValueError(f"robot: {len(robot)} ticks for {n_steps} steps (need n_steps + 1)")
+    walls = make_walls(np.zeros((0, 2, 2)) if walls_m is None else walls_m, forces, state.radius_m)
+    fastest = forces.max_speed_factor * max(
+        float(state.desired_speed_mps.max(initial=0.0)),
+        behaviours.curious_speed_mps,
+        behaviours.threatening_speed_mps,
+    )
+    if state.n and fastest * dt_s > 0.5 * float(state.radius_m.min()):
+        log.warning(
+            "dt_s=%g lets humans move %.2f m per tick, more than half their radius: the displacement "
+            "clamp will slow them down (use a smaller dt_s)",
+            dt_s,
+            fastest * dt_s,
+        )
+    rng = np.random.default_rng(seed)
+    t_count, n = n_steps + 1, state.n
+    out = {
+        "position_m": np.empty((t_count, n, 2)),
+        "velocity_mps": np.empty((t_count, n, 2)),
+        "heading_rad": np.empty((t_count, n)),
+        "behaviour_state": np.empty((t_count, n), np.int8),
+        "gait_phase": np.empty((t_count, n)),
+        "goal_index": np.empty((t_count, n), np.int64),
+    }
+    robot_vel = robot.velocity_mps(dt_s) if robot is not None else None
+    for k in range(t_count):
+        for name, arr in out.items():
+            arr[k] = getattr(state, name)
+        if k == n_steps:
+            break
+        robot_k = None
+        if robot is not None:
+            robot_k = RobotState(
+                robot.position_m[k],
+                robot_vel[k],
+                float(robot.heading_rad[k]),
+                robot.radius_m,
+                robot.half_length_m,
+            )
+        state = step(state, robot_k, walls, forces, behaviours, dt_s, rng)
+    if robot is not None:
+        r_pos, r_vel, r_yaw = robot.position_m[:t_count], robot_vel[:t_count], robot.heading_rad[:t_count]
+        r_radius, r_half = robot.radius_m, robot.half_length_m
+    else:
+        r_pos, r_vel, r_yaw, r_radius, r_half = (
+            np.zeros((t_count, 2)),
+            np.zeros((t_count, 2)),
+            np.zeros(t_count),
+            0.0,
+            0.0,
+        )
+    return CrowdTrajectory(
+        time_s=np.arange(t_count) * dt_s,
+        radius_m=state.radius_m.copy(),
+        behaviour=state.behaviour.copy(),
+        group_id=state.group_id.copy(),
+        has_robot=robot is not None,
+        robot_position_m=r_pos.copy(),
+        robot_velocity_mps=r_vel.copy(),
+        robot_heading_rad=r_yaw.copy(),
+        robot_radius_m=float(r_radius),
+        robot_half_length_m=float(r_half),
+        **out,
+    )
