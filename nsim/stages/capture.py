@@ -196,7 +196,8 @@ def write_preview(path: Path, thumbs, polygons, cam_to_world: np.ndarray, spec: 
         p = np.asarray(poly)
         ax.fill(p[:, 0], p[:, 1], color="0.6", alpha=0.8, lw=0)
     pos = cam_to_world[:, :3, 3]
-    sc = ax.scatter(pos[:, 0], pos[:, 1], c=pos[:, 2], s=6, cmap="viridis")
+    order = np.argsort(-pos[:, 2], kind="stable")  # low passes drawn last, as smaller dots on top
+    sc = ax.scatter(pos[order, 0], pos[order, 1], c=pos[order, 2], s=4 + 12 * pos[order, 2], cmap="viridis")
     fwd = cam_to_world[:, :3, 2]
     step = max(1, len(pos) // 30)
     ax.quiver(pos[::step, 0], pos[::step, 1], fwd[::step, 0], fwd[::step, 1], width=0.004, scale=15, color="C3")

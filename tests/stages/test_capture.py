@@ -82,3 +82,24 @@ def test_seed_and_room_change_the_artifact(run_cli, tmp_path):
         assert code == 0
         ids.add(out.strip())
     assert len(ids) == 4
+
+
+ROOMS = ("robot-lab", "common-room", "kitchen", "living-room", "seminar-room")
+
+
+@pytest.mark.parametrize("camera", ["pinhole", "fisheye"])
+@pytest.mark.parametrize("room", ROOMS)
+def test_every_room_and_camera_publishes(run_cli, tmp_path, room, camera):
+    code, out, err = run_cli(
+        "capture", "synth", "--preset", "tiny", "--room", room, "--camera", camera,
+        "--set", "n_frames=3", "--set", "video=false", "--set", "supersample=1",
+    )
+    assert code == 0, err
+    store = Store(tmp_path / "ws")
+    art = store.get(out.strip())
+    assert art.manifest["summary"]["room"] == room
+    data = read_transforms(art.path / "transforms.json")
+    assert data.frames[0].camera.model == ("PINHOLE" if camera == "pinhole" else "OPENCV_FISHEYE")
+    depth = read_depth_exr(art.path / data.frames[0].depth_file_path)
+    finite = np.isfinite(depth)
+    assert finite.mean() > 0.6 and (depth[finite] > 0).all() and depth[finite].max() < 20.0
