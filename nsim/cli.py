@@ -18,7 +18,8 @@ from typing import Any
 import click
 
 from nsim import __version__
-from nsim.config import ConfigError, load_config
+from nsim.commands import register_commands
+from nsim.config import ConfigError
 from nsim.context import DEVICE_CHOICES, RunContext
 from nsim.errors import NsimError
 from nsim.workspace.store import Store, default_root
@@ -28,7 +29,7 @@ log = logging.getLogger("nsim")
 
 # ------------------------------------------------------------------------------- helpers
 def _ctx(click_ctx: click.Context) -> RunContext:
-    return click_ctx.find_root().obj
+    return click_ctx.find_root().obj.get()
 
 
 def _human_size(n: float) -> str:
@@ -51,39 +52,6 @@ def _age(created: str | None) -> str:
         if s >= span:
             return f"{s / span:.0f}{unit}"
     return f"{s:.0f}s"
-
-
-def stage_options(stage: str):
-    """The options every stage command shares: --preset, --config, --set, --force, --tag."""
-
-    def deco(f):
-        f = click.option("--tag", "tag", default=None, help="Also point this ref (e.g. capture/lab) at the result.")(f)
-        f = click.option("--force", is_flag=True, help="Recompute even if the run cache has this action.")(f)
-        f = click.option(
-            "--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override one config value (repeatable)."
-        )(f)
-        f = click.option(
-            "--config", "config_file", type=click.Path(dir_okay=False), default=None, help="YAML file over the preset."
-        )(f)
-        f = click.option(
-            "--preset", default="default", show_default=True, help=f"Preset from configs/{stage}/NAME.yaml."
-        )(f)
-        return f
-
-    return deco
-
-
-def resolve_config(cls: type, stage: str, preset: str, config_file: str | None, overrides: Sequence[str]) -> Any:
-    return load_config(cls, stage=stage, preset=preset, config_file=config_file, overrides=overrides)
-
-
-def report_artifact(ctx: RunContext, art_id: str, hit: bool, tag: str | None) -> None:
-    if tag:
-        ctx.store.set_ref(tag, art_id)
-    art = ctx.store.get(art_id)
-    status = "cached" if hit else "published"
-    click.echo(f"{art.kind} {art_id} ({status})", err=True)
-    click.echo(art_id)
 
 
 # ------------------------------------------------------------------------------- root group
@@ -127,9 +95,6 @@ class _LazyContext:
             root, device, seed, progress = self._args
             self._ctx = RunContext(store=Store(root), device_spec=device, seed=seed, progress=progress)
         return self._ctx
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.get(), name)
 
 
 # ------------------------------------------------------------------------------- workspace commands
@@ -286,26 +251,8 @@ def tag_cmd(click_ctx: click.Context, spec: str, name: str, delete: bool):
 
 
 # ------------------------------------------------------------------------------- stages
-@cli.group("capture")
-def capture_group():
-    """Captures: the built-in test room with exact ground truth."""
-
-
-@capture_group.command("synth")
-@stage_options("capture")
-@click.option("--room", default=None, help="Room preset (robot-lab, common-room, kitchen, living-room, seminar-room).")
-@click.option("--camera", default=None, help="Camera: pinhole or fisheye.")
-@click.pass_context
-def capture_synth_cmd(click_ctx, preset, config_file, overrides, force, tag, room, camera):
-    """Generate a handheld capture of the test room with exact ground truth."""
-    from nsim.stages import capture
-
-    extra = ([f"room={room}"] if room else []) + ([f"camera={camera}"] if camera else [])
-    cfg = resolve_config(capture.Config, "capture", preset, config_file, [*extra, *overrides])
-    ctx = _ctx(click_ctx).get()
-    ctx.force = force
-    out = capture.run(capture.Inputs(), cfg, ctx)
-    report_artifact(ctx, out.capture, out.cache_hit, tag)
+# Each stage's command lives in nsim/commands/<stage>.py (a thin shell over nsim.stages.<stage>).
+register_commands(cli)
 
 
 # ------------------------------------------------------------------------------- entry point

@@ -1,0 +1,19 @@
+"""Stage commands: one module per stage, each a thin click shell over ``nsim.stages.<stage>.run``.
+
+Modules import their stage lazily inside the command so that ``nsim ls`` stays fast.
+"""
+
+from __future__ import annotations
+
+import click
+
+# module name under nsim.commands -> attribute holding the click command or group
+COMMAND_MODULES = ("capture",)
+
+
+def register_commands(group: click.Group) -> None:
+    import importlib
+
+    for name in COMMAND_MODULES:
+        mod = importlib.import_module(f"nsim.commands.{name}")
+        group.add_command(mod.command)
