@@ -18,8 +18,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from nsim.cli import main as nsim_main  # noqa: E402
 from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
+from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.stages import capture  # noqa: E402
+from nsim.stages import capture, simulate  # noqa: E402
 from nsim.workspace.store import Store, default_root  # noqa: E402
 
 
@@ -36,6 +37,12 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
         cfg = load_config(capture.Config, stage="capture", preset=preset, overrides=[f"camera={camera}"])
         out = step(f"capture synth ({camera})", lambda cfg=cfg: capture.run(capture.Inputs(), cfg, ctx))
         ctx.store.set_ref(f"capture/demo-{camera}", out.capture)
+
+    repo = Path(__file__).resolve().parents[1]
+    sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)
+    scenario = load_scenario(repo / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
+    out = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx))
+    ctx.store.set_ref("trajectory/demo-spot-run", out.trajectory)
 
 
 def main() -> int:

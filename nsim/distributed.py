@@ -1,0 +1,133 @@
+"""Run independent tasks in-process, in a local process pool, or on a Ray cluster.
+
+``map_tasks(fn, items, engine=..., address=..., workers=...)`` returns ``[fn(item) for item in
+items]`` in item order, whichever engine runs them; ``fn`` and the items must be picklable (a
+module-level function and plain data) for anything but the sequential engine.
+
+Engines
+    ``local`` with ``workers=1`` (the default): sequential, in this process.
+    ``local`` with ``workers>1``: a ``concurrent.futures`` process pool (``spawn`` start method,
+    so workers never inherit locks or threads from the parent).
+    ``ray``: Ray tasks. ``address=None`` starts a private local Ray instance (``workers`` CPUs);
+    ``address="auto"`` or ``"HOST:6379"`` joins a running cluster, ``"ray://HOST:10001"`` connects
+    through the Ray client. Ray is optional and imported only here: ``pip install 'ray[default]'``.
+
+Stages that publish from workers rely on the workspace being safe for concurrent writers (it is:
+``nsim.workspace.store`` writes under ``tmp/`` and renames into place) and, across machines, on a
+shared filesystem that every node mounts at the same path.
+
+On SLURM (Ray >= 2.49), ``ray symmetric-run`` starts Ray on every node of the allocation and runs
+the command on the head node only, e.g. in an sbatch script over N nodes::
+
+    HEAD=$(scontrol show hostnames "$SLURM_JOB_NODELIST" | head -n 1)
+    srun --nodes="$SLURM_NNODES" --ntasks-per-node=1 \\
+        ray symmetric-run --address "$HEAD:6379" --min-nodes "$SLURM_NNODES" -- \\
+        nsim simulate --sweep sweep.yaml --engine ray --address auto --summary summary.md
+
+(the workspace, the virtual environment and the sweep file on the shared filesystem; see
+``ray symmetric-run --help`` for the options of your Ray version).
+
+User errors (:class:`~nsim.errors.NsimError`) raised by a task come back as an ``NsimError``
+naming the task's index; any other exception propagates with its traceback.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
+
+from nsim.errors import NsimError
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+ENGINES = ("local", "ray")
+RAY_HOWTO = "pip install 'ray[default]'"
+
+
+@dataclasses.dataclass(frozen=True)
+class _Failure:
+    message: str
+
+
+@dataclasses.dataclass(frozen=True)
+class _Guarded:
+    """``fn`` with user errors returned as values (so they cross process boundaries as one line)."""
+
+    fn: Callable[[Any], Any]
+
+    def __call__(self, item: Any) -> Any:
+        try:
+            return self.fn(item)
+        except NsimError as exc:
+            return _Failure(str(exc))
+
+
+def _unwrap(results: Sequence[Any]) -> list[Any]:
+    for k, r in enumerate(results):
+        if isinstance(r, _Failure):
+            raise NsimError(f"task {k}: {r.message}")
+    return list(results)
+
+
+def map_tasks(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    *,
+    engine: str = "local",
+    address: str | None = None,
+    workers: int = 1,
+) -> list[R]:
+    """``[fn(item) for item in items]``, run by ``engine`` (see the module docstring)."""
+    if engine not in ENGINES:
+        raise NsimError(f"--engine: {engine!r} is not one of {', '.join(ENGINES)}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise NsimError(f"--workers: expected an int >= 1, got {workers!r}")
+    if address is not None and engine != "ray":
+        raise NsimError("--address: only the ray engine connects to a cluster (use --engine ray)")
+    items = list(items)
+    guarded = _Guarded(fn)
+    if not items:
+        return []
+    if engine == "ray":
+        return _unwrap(_map_ray(guarded, items, address, workers))
+    if workers == 1 or len(items) == 1:
+        return _unwrap([guarded(x) for x in items])
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(items)), mp_context=ctx) as pool:
+        return _unwrap(list(pool.map(guarded, items)))
+
+
+def import_ray():
+    """The ``ray`` module, or an :class:`NsimError` saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise NsimError(f"--engine ray: Ray is not installed; install it with: {RAY_HOWTO}") from None
+    return ray
+
+
+def _map_ray(guarded: _Guarded, items: list[Any], address: str | None, workers: int) -> list[Any]:
+    ray = import_ray()
+    started = False
+    if not ray.is_initialized():
+        kwargs: dict[str, Any] = {"address": address, "log_to_driver": False}
+        if address is None:
+            kwargs["num_cpus"] = workers
+        ray.init(**kwargs)
+        started = True
+    try:
+        task = ray.remote(num_cpus=1)(_call)
+        fn_ref = ray.put(guarded)
+        return ray.get([task.remote(fn_ref, x) for x in items])
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _call(fn: Callable[[Any], Any], item: Any) -> Any:
+    return fn(item)

@@ -1,0 +1,31 @@
+"""The demo pipeline end to end at tiny size (what `make demo` runs at default size)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from nsim.workspace.store import Store
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_demo_runs_every_stage_and_ends_with_ls(tmp_path):
+    ws = tmp_path / "ws"
+    cmd = [sys.executable, str(REPO / "pipelines" / "demo.py"), "--preset", "tiny", "--workspace", str(ws)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "nsim workspace" in proc.stdout
+    store = Store(ws)
+    kinds = sorted({a.kind for a in store.artifacts()})
+    assert kinds == ["capture", "trajectory"]
+    for art in store.artifacts():
+        assert store.verify(art.id) == []
+    # a rerun is all cache hits and publishes nothing new
+    before = store.all_ids()
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and store.all_ids() == before
