@@ -1,0 +1,725 @@
+"""Structure from motion with pycolmap: SIFT, matching, incremental mapping, global BA.
+
+``run_sfm(image_dir, work_dir, options)`` reconstructs the images of a folder and returns an
+:class:`SfmResult`: the pycolmap reconstruction (the largest model when COLMAP makes several),
+per-image ``cam_to_world`` (OpenCV axes, the reconstruction's arbitrary world frame and scale)
+and intrinsics as :class:`nsim.geometry.cameras.Camera` (OpenCV pixel centres: COLMAP's
+``cx, cy`` minus 0.5), the sparse points, and statistics with the wall time of each phase.
+
+Focal length. A video carries no EXIF focal length, and COLMAP's default guess
+(``1.2 * max(W, H)``, a 45 deg horizontal field of view) is far from a phone's ~65-75 deg: on
+a synthetic 70 deg room at 320x240 the mapper then split 48 frames into five models (the
+largest 32 frames), while a 65 deg guess registered all 48. pycolmap marks fisheye pairs
+without a focal prior as degenerate, so those cannot be matched at all. So, unless ``known_camera`` is given, the mapper is
+run with an initial focal length from a guessed horizontal field of view
+(``SfmOptions.hfov_guesses_deg``, per-model defaults in ``DEFAULT_HFOV_GUESSES_DEG``; the
+fisheye guess is equidistant), and again with the next guess while fewer than
+``retry_below_fraction`` of the images register; the attempt registering the most images
+wins. Bundle adjustment refines the focal length (and distortion) from there.
+
+Loop detection (sequential matching) needs a visual vocabulary. COLMAP would download one;
+instead a small one is built from the sequence's own descriptors (``VisualIndex.build``),
+which needs no network and suits one room.
+
+Determinism. Every RANSAC and the mapper get ``options.seed``; with
+``options.deterministic`` (the default) mapping, bundle adjustment and loop retrieval run on
+one thread, because Ceres' multi-threaded reductions are not bit-for-bit repeatable. Feature
+extraction and matching stay multi-threaded, with two guards found by experiment: images are
+imported before extraction (extraction alone numbers them in the order its threads finish,
+and the mapper's choices depend on the ids), and sequential pairs are generated first and
+matched as an explicit list (``match_sequential`` with loop detection and several threads
+now and then drops a pair). The same images and options then give the same poses bit for bit.
+
+Import order: ``cv2`` must be imported before ``pycolmap``. With pycolmap 4.2.1 and
+opencv-contrib-python-headless 5.0 loaded the other way round, ``cv2.imencode('.png')`` aborts
+the whole process (a double free in zlib's ``deflateEnd`` under OpenCV's libpng: the two wheels'
+bundled libraries clash). This module imports cv2 first; code that imports pycolmap directly
+should do the same (or import ``nsim.sfm.colmap`` instead).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2  # noqa: F401  (must precede pycolmap, see the module docstring)
+import numpy as np
+import pycolmap
+
+from nsim.errors import InputError
+from nsim.geometry.cameras import Camera
+from nsim.geometry.conventions import principal_point_from_colmap, principal_point_to_colmap
+from nsim.geometry.transforms import invert_se3
+
+log = logging.getLogger(__name__)
+
+CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
+MATCHERS = ("sequential", "exhaustive")
+DEVICES = ("cpu", "cuda")
+PHASES = ("features", "matching", "mapping", "bundle_adjustment")
+#: Horizontal fields of view tried in turn for the initial focal length when intrinsics are unknown.
+DEFAULT_HFOV_GUESSES_DEG = {
+    "SIMPLE_RADIAL": (65.0, 45.0, 90.0),
+    "OPENCV": (65.0, 45.0, 90.0),
+    "PINHOLE": (65.0, 45.0, 90.0),
+    "OPENCV_FISHEYE": (180.0, 140.0, 220.0),
+}
+FISHEYE_MODELS = ("OPENCV_FISHEYE",)
+#: RANSAC trial cap of two-view verification (COLMAP's 10000 made loop-closure candidates, which
+#: often have low inlier ratios, take 4x longer to verify than all sequential pairs together).
+VERIFY_MAX_RANSAC_TRIALS = 2000
+#: A frame whose pose differs this much from both temporal neighbours (which agree) is rejected.
+JUMP_MIN_ROTATION_DEG = 30.0
+JUMP_MIN_STEPS = 10.0
+
+#: (phase, done, total) progress callback.
+ProgressFn = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class SfmOptions:
+    """How to run SfM.
+
+    camera_model: COLMAP model estimated when no camera is known (SIMPLE_RADIAL comes back as
+        an nsim OPENCV camera with only k1). shared_intrinsics: one camera for all images.
+    matcher: "sequential" for ordered video frames (each image against its ``overlap`` next
+        ones and quadratically further ones, plus retrieval-based loop pairs with
+        ``loop_detection``; also enables the pose-jump check), "exhaustive" for small or
+        unordered sets. max_features: SIFT features per image.
+    device: "cpu" or "cuda" (SIFT on the GPU when pycolmap has CUDA, else a warning and CPU).
+    num_threads: extraction and matching threads (-1: all cores). seed / deterministic: see
+        the module docstring. min_registered_fraction: fewer registered images is an
+        InputError. retry_below_fraction: map again with the next focal guess below this.
+    refine_known_intrinsics: let bundle adjustment refine a ``known_camera``.
+    hfov_guesses_deg: initial fields of view to try (None: ``DEFAULT_HFOV_GUESSES_DEG``).
+    """
+
+    camera_model: str = "SIMPLE_RADIAL"
+    shared_intrinsics: bool = True
+    matcher: str = "sequential"
+    overlap: int = 10
+    loop_detection: bool = True
+    max_features: int = 8192
+    device: str = "cpu"
+    num_threads: int = -1
+    seed: int = 0
+    deterministic: bool = True
+    min_registered_fraction: float = 0.5
+    retry_below_fraction: float = 0.95
+    refine_known_intrinsics: bool = False
+    hfov_guesses_deg: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.camera_model not in CAMERA_MODELS:
+            raise ValueError(f"camera_model: {self.camera_model!r} is not one of {', '.join(CAMERA_MODELS)}")
+        if self.matcher not in MATCHERS:
+            raise ValueError(f"matcher: {self.matcher!r} is not one of {', '.join(MATCHERS)}")
+        if self.device not in DEVICES:
+            raise ValueError(f"device: {self.device!r} is not one of {', '.join(DEVICES)}")
+        if self.overlap < 1 or self.max_features < 16:
+            raise ValueError("overlap must be >= 1 and max_features >= 16")
+        for name in ("min_registered_fraction", "retry_below_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name}: must be in [0, 1], got {getattr(self, name)}")
+        if self.hfov_guesses_deg is not None:
+            limit = 360.0 if self.camera_model in FISHEYE_MODELS else 180.0
+            if not self.hfov_guesses_deg or not all(0.0 < h < limit for h in self.hfov_guesses_deg):
+                raise ValueError(f"hfov_guesses_deg: expected values in (0, {limit:g}), got {self.hfov_guesses_deg}")
+
+    @property
+    def hfov_guesses(self) -> tuple[float, ...]:
+        return self.hfov_guesses_deg or DEFAULT_HFOV_GUESSES_DEG[self.camera_model]
+
+
+@dataclass(frozen=True)
+class SfmStats:
+    """Numbers for report.json. Errors in pixels, times in seconds.
+
+    unregistered: every input image without a pose; rejected: those among them that COLMAP
+    registered but whose pose jumped away from their neighbours (see ``_reject_pose_jumps``).
+    """
+
+    images_given: int
+    images_registered: int
+    unregistered: tuple[str, ...]
+    rejected: tuple[str, ...]
+    mean_reprojection_error_px: float
+    mean_track_length: float
+    num_points3d: int
+    num_models: int
+    attempts: tuple[dict[str, Any], ...]
+    device: str
+    phase_wall_s: dict[str, float]
+
+    @property
+    def registered_fraction(self) -> float:
+        return self.images_registered / max(self.images_given, 1)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["unregistered"] = list(self.unregistered)
+        d["rejected"] = list(self.rejected)
+        d["attempts"] = [dict(a) for a in self.attempts]
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class SfmResult:
+    """A reconstruction in its own (arbitrary) world frame and scale.
+
+    cam_to_world: image name -> (4, 4) float64, OpenCV axes, registered images only.
+    cameras: image name -> intrinsics (OpenCV pixel convention), registered images only.
+    points_xyz: (P, 3) float64; points_rgb: (P, 3) uint8; points_error_px: (P,) float64 mean
+    reprojection error; points_track_length: (P,) int64. image_names: every input image, in order.
+    """
+
+    reconstruction: pycolmap.Reconstruction
+    image_names: tuple[str, ...]
+    cam_to_world: dict[str, np.ndarray]
+    cameras: dict[str, Camera]
+    points_xyz: np.ndarray
+    points_rgb: np.ndarray
+    points_error_px: np.ndarray
+    points_track_length: np.ndarray
+    stats: SfmStats
+
+    @property
+    def registered_names(self) -> list[str]:
+        """Registered image names in input order."""
+        return [n for n in self.image_names if n in self.cam_to_world]
+
+    def poses_se3(self, names: list[str] | None = None) -> np.ndarray:
+        """(N, 4, 4) cam_to_world of ``names`` (default: every registered image, input order)."""
+        names = self.registered_names if names is None else names
+        return np.stack([self.cam_to_world[n] for n in names]) if names else np.zeros((0, 4, 4))
+
+
+# --------------------------------------------------------------------------------------
+# Camera conversions (COLMAP <-> nsim)
+# --------------------------------------------------------------------------------------
+
+
+def camera_from_colmap(cam: pycolmap.Camera) -> Camera:
+    """A pycolmap camera as an nsim Camera (principal point shifted by -0.5 to OpenCV's convention).
+
+    SIMPLE_RADIAL and RADIAL become OPENCV with the same radial terms (identical projection).
+    """
+    model, p = cam.model_name, [float(v) for v in cam.params]
+    if model == "SIMPLE_PINHOLE":
+        f, cx, cy = p
+        fx, fy, dist, out = f, f, (), "PINHOLE"
+    elif model == "PINHOLE":
+        fx, fy, cx, cy = p
+        dist, out = (), "PINHOLE"
+    elif model == "SIMPLE_RADIAL":
+        f, cx, cy, k = p
+        fx, fy, dist, out = f, f, (k, 0.0, 0.0, 0.0, 0.0), "OPENCV"
+    elif model == "RADIAL":
+        f, cx, cy, k1, k2 = p
+        fx, fy, dist, out = f, f, (k1, k2, 0.0, 0.0, 0.0), "OPENCV"
+    elif model == "OPENCV":
+        fx, fy, cx, cy, k1, k2, p1, p2 = p
+        dist, out = (k1, k2, p1, p2, 0.0), "OPENCV"
+    elif model == "FULL_OPENCV":
+        fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 = p
+        if any((k4, k5, k6)):
+            raise ValueError(f"FULL_OPENCV camera with rational terms k4..k6 {k4, k5, k6} has no nsim model")
+        dist, out = (k1, k2, p1, p2, k3), "OPENCV"
+    elif model == "OPENCV_FISHEYE":
+        fx, fy, cx, cy, k1, k2, k3, k4 = p
+        dist, out = (k1, k2, k3, k4), "OPENCV_FISHEYE"
+    else:
+        raise ValueError(f"COLMAP camera model {model} has no nsim equivalent")
+    cx, cy = principal_point_from_colmap(cx, cy)
+    return Camera(out, int(cam.width), int(cam.height), fx, fy, cx, cy, dist)
+
+
+def camera_to_colmap(camera: Camera, camera_id: int = 1) -> pycolmap.Camera:
+    """An nsim Camera as a pycolmap camera (principal point + 0.5) with a focal length prior.
+
+    OPENCV with a nonzero k3 becomes FULL_OPENCV (COLMAP's OPENCV has no k3).
+    """
+    cx, cy = principal_point_to_colmap(camera.cx, camera.cy)
+    if camera.model == "PINHOLE":
+        model, params = "PINHOLE", [camera.fx, camera.fy, cx, cy]
+    elif camera.model == "OPENCV":
+        k1, k2, p1, p2, k3 = camera.dist
+        if k3 == 0.0:
+            model, params = "OPENCV", [camera.fx, camera.fy, cx, cy, k1, k2, p1, p2]
+        else:
+            model, params = "FULL_OPENCV", [camera.fx, camera.fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
+    elif camera.model == "OPENCV_FISHEYE":
+        model, params = "OPENCV_FISHEYE", [camera.fx, camera.fy, cx, cy, *camera.dist]
+    else:
+        raise ValueError(f"camera model {camera.model} cannot be used for SfM")
+    cam = pycolmap.Camera.create_from_model_name(camera_id, model, camera.fx, camera.width, camera.height)
+    cam.params = params
+    cam.has_prior_focal_length = True
+    return cam
+
+
+def initial_focal_px(model: str, width: int, height: int, hfov_deg: float) -> float:
+    """Focal length giving a horizontal field of view ``hfov_deg`` across ``max(width, height)``.
+
+    Pinhole ``f = (W/2) / tan(hfov/2)``; fisheye equidistant ``f = (W/2) / (hfov/2 in rad)``.
+    """
+    half = math.radians(hfov_deg) / 2.0
+    size = max(width, height) / 2.0
+    return size / half if model in FISHEYE_MODELS else size / math.tan(half)
+
+
+def _guess_camera(model: str, width: int, height: int, hfov_deg: float, camera_id: int) -> pycolmap.Camera:
+    f = initial_focal_px(model, width, height, hfov_deg)
+    cam = pycolmap.Camera.create_from_model_name(camera_id, model, f, width, height)
+    # Fisheye pairs need a focal prior to be verified at all; perspective ones are verified
+    # with a fundamental matrix, and without a prior the mapper re-estimates the focal length.
+    cam.has_prior_focal_length = model in FISHEYE_MODELS
+    return cam
+
+
+# --------------------------------------------------------------------------------------
+# The pipeline
+# --------------------------------------------------------------------------------------
+
+
+def _image_sizes(image_dir: Path, names: list[str]) -> dict[str, tuple[int, int]]:
+    sizes = {}
+    for name in names:
+        path = image_dir / name
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise InputError(f"{path}: not a readable image")
+        sizes[name] = (int(image.shape[1]), int(image.shape[0]))
+    return sizes
+
+
+def _resolve_device(device: str) -> pycolmap.Device:
+    if device == "cuda":
+        if pycolmap.has_cuda:
+            return pycolmap.Device.cuda
+        log.warning("pycolmap was built without CUDA; SIFT runs on the CPU")
+    return pycolmap.Device.cpu
+
+
+def _two_view_options(seed: int) -> pycolmap.TwoViewGeometryOptions:
+    opts = pycolmap.TwoViewGeometryOptions()
+    opts.ransac.random_seed = seed
+    opts.ransac.max_num_trials = VERIFY_MAX_RANSAC_TRIALS
+    return opts
+
+
+def _build_vocabulary(db_path: Path, out_path: Path, seed: int, deterministic: bool) -> Path:
+    """A small visual vocabulary from the database's own descriptors (for loop detection)."""
+    db = pycolmap.Database.open(db_path)
+    try:
+        chunks = [db.read_descriptors(im.image_id).to_float().data for im in db.read_all_images()]
+    finally:
+        db.close()
+    descriptors = np.concatenate([c for c in chunks if len(c)]).astype(np.float32)
+    rng = np.random.default_rng(seed)
+    if len(descriptors) > 200_000:
+        descriptors = descriptors[np.sort(rng.choice(len(descriptors), 200_000, replace=False))]
+    # ~64 training descriptors per word, a power of two between 64 and 16384 words
+    words = int(2 ** np.clip(np.floor(np.log2(max(len(descriptors), 1) / 64)), 6, 14))
+    index = pycolmap.VisualIndex.create(descriptors.shape[1], 64)
+    build = pycolmap.VisualIndex.BuildOptions()
+    build.num_visual_words = words
+    build.num_iterations = 20
+    build.num_threads = 1 if deterministic else -1
+    index.build(build, pycolmap.FeatureDescriptorsFloat(pycolmap.FeatureExtractorType.SIFT, descriptors))
+    index.write(out_path)
+    return out_path
+
+
+def _match(db_path: Path, work_dir: Path, n_images: int, options: SfmOptions, device: pycolmap.Device) -> None:
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = options.num_threads
+    matching.use_gpu = device == pycolmap.Device.cuda
+    verification = _two_view_options(options.seed)
+    if options.matcher == "exhaustive":
+        pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification,
+                                  device=device)
+        return
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = options.overlap
+    pairing.quadratic_overlap = True
+    pairing.num_threads = 1 if options.deterministic else options.num_threads
+    if options.loop_detection and n_images > 2 * options.overlap + 2:
+        pairing.loop_detection = True
+        pairing.vocab_tree_path = _build_vocabulary(db_path, work_dir / "vocabulary.bin", options.seed,
+                                                    options.deterministic)
+        pairing.loop_detection_period = max(1, options.overlap // 2)
+        pairing.loop_detection_num_images = options.overlap
+        pairing.loop_detection_min_index_distance = options.overlap + 1
+    # The pairs are generated first and matched as an explicit list: pycolmap's match_sequential
+    # with loop detection and several threads sometimes drops a pair (seen with 4.2.1), so the
+    # same input could give different matches.
+    db = pycolmap.Database.open(db_path)
+    try:
+        names = {im.image_id: im.name for im in db.read_all_images()}
+        pairs = pycolmap.SequentialPairGenerator(pairing, db).all_pairs()
+    finally:
+        db.close()
+    if any(len(name.split()) != 1 for name in names.values()):  # the pair list is space-separated
+        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                                  verification_options=verification, device=device)
+        return
+    unique = dict.fromkeys((min(a, b), max(a, b)) for a, b in pairs if a != b)
+    pair_file = work_dir / "pairs.txt"
+    pair_file.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in unique))
+    imported = pycolmap.ImportedPairingOptions()
+    imported.match_list_path = pair_file
+    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=imported,
+                               verification_options=verification, device=device)
+
+
+def _set_cameras(db_path: Path, make: Callable[[pycolmap.Camera], pycolmap.Camera], reverify: bool,
+                 seed: int, num_threads: int) -> None:
+    """Replace every camera of the database by ``make(old)``; re-run verification if asked."""
+    db = pycolmap.Database.open(db_path)
+    try:
+        for cam in db.read_all_cameras():
+            db.update_camera(make(cam))
+        if reverify:
+            db.clear_two_view_geometries()
+    finally:
+        db.close()
+    if reverify:
+        verifier = pycolmap.GeometricVerifierOptions()
+        verifier.num_threads = num_threads
+        pycolmap.geometric_verification(db_path, verifier_options=verifier,
+                                        two_view_geometry_options=_two_view_options(seed))
+
+
+def _mapper_options(options: SfmOptions, refine_intrinsics: bool) -> pycolmap.IncrementalPipelineOptions:
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = 1 if options.deterministic else options.num_threads
+    opts.random_seed = options.seed
+    opts.multiple_models = True
+    opts.max_num_models = 10
+    opts.extract_colors = True
+    opts.ba_refine_focal_length = refine_intrinsics
+    opts.ba_refine_extra_params = refine_intrinsics
+    opts.ba_refine_principal_point = False
+    opts.mapper.abs_pose_refine_focal_length = refine_intrinsics
+    opts.mapper.abs_pose_refine_extra_params = refine_intrinsics
+    opts.mapper.random_seed = options.seed
+    opts.mapper.num_threads = opts.num_threads
+    opts.triangulation.random_seed = options.seed
+    return opts
+
+
+def _map_once(db_path: Path, image_dir: Path, out_dir: Path, names: list[str], options: SfmOptions,
+              refine_intrinsics: bool, on_image: Callable[[], None] | None) -> tuple[pycolmap.Reconstruction | None, int]:
+    """One incremental mapping run; returns (largest model or None, number of models)."""
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True)
+    opts = _mapper_options(options, refine_intrinsics)
+    opts.image_names = names
+    models = pycolmap.incremental_mapping(db_path, image_dir, out_dir, options=opts,
+                                          next_image_callback=on_image)
+    if not models:
+        return None, 0
+    best = max(sorted(models), key=lambda k: (models[k].num_reg_images(), -k))
+    return models[best], len(models)
+
+
+def _reject_pose_jumps(rec: pycolmap.Reconstruction, names: list[str]) -> list[str]:
+    """De-register frames whose pose jumps away from both temporal neighbours; returns their names.
+
+    For ordered (video) input. A frame is rejected when its rotation differs from both its
+    previous and its next registered frame by more than ``JUMP_MIN_ROTATION_DEG`` while those
+    two agree to within half of that difference, or likewise its centre is more than
+    ``JUMP_MIN_STEPS`` median frame steps from both. On the full-size fisheye test room one frame of
+    150 was registered mirrored (180 deg, 4 m off) with 362 consistent points; nothing else
+    in COLMAP's statistics set it apart.
+    """
+    from nsim.geometry.transforms import rotation_angle_deg
+
+    reg = [rec.find_image_with_name(n) for n in names]
+    reg = [im for im in reg if im is not None and im.has_pose]
+    if len(reg) < 3:
+        return []
+    w2c = np.stack([np.vstack([im.cam_from_world().matrix(), [0.0, 0.0, 0.0, 1.0]]) for im in reg])
+    c2w = invert_se3(w2c)
+    R, c = c2w[:, :3, :3], c2w[:, :3, 3]
+    step = float(np.median(np.linalg.norm(np.diff(c, axis=0), axis=1)))
+    rejected = []
+    for i in range(len(reg)):
+        a, b = (i - 1, i + 1) if 0 < i < len(reg) - 1 else ((i + 1, i + 2) if i == 0 else (i - 1, i - 2))
+        rot = min(rotation_angle_deg(R[i], R[a]), rotation_angle_deg(R[i], R[b]))
+        rot_ab = rotation_angle_deg(R[a], R[b])
+        dist = min(np.linalg.norm(c[i] - c[a]), np.linalg.norm(c[i] - c[b]))
+        dist_ab = np.linalg.norm(c[a] - c[b])
+        if (rot > JUMP_MIN_ROTATION_DEG and rot_ab < 0.5 * rot) or (
+                dist > JUMP_MIN_STEPS * step and dist_ab < 0.5 * dist):
+            log.warning("%s: pose %.0f deg and %.1f frame steps away from both neighbours; left unregistered",
+                        reg[i].name, rot, dist / max(step, 1e-12))
+            rejected.append(reg[i])
+    for im in rejected:
+        rec.deregister_frame(im.frame_id)
+    return [im.name for im in rejected]
+
+
+def _global_bundle_adjustment(rec: pycolmap.Reconstruction, options: SfmOptions, refine_intrinsics: bool) -> None:
+    ba = pycolmap.BundleAdjustmentOptions()
+    ba.refine_focal_length = refine_intrinsics
+    ba.refine_extra_params = refine_intrinsics
+    ba.refine_principal_point = False
+    ba.print_summary = False
+    ba.ceres.solver_options.num_threads = 1 if options.deterministic else options.num_threads
+    pycolmap.bundle_adjustment(rec, ba)
+
+
+@contextlib.contextmanager
+def colmap_log_level(level: int | None = None) -> Iterator[None]:
+    """Set COLMAP's (glog) minimum log level for a block: 0 info, 1 warning, 2 error.
+
+    Default: info when this module's logger is at DEBUG, else errors only (COLMAP's INFO and
+    WARNING output is per image and per pair, far too much for a terminal).
+    """
+    if level is None:
+        level = 0 if log.isEnabledFor(logging.DEBUG) else 2
+    old = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = level
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = old
+
+
+def run_sfm(
+    image_dir: str | os.PathLike,
+    work_dir: str | os.PathLike,
+    options: SfmOptions = SfmOptions(),
+    known_camera: Camera | None = None,
+    image_names: list[str] | None = None,
+    progress: ProgressFn | None = None,
+) -> SfmResult:
+    """Reconstruct the images ``image_names`` (default: every jpg/jpeg/png) of ``image_dir``.
+
+    work_dir receives COLMAP's database, the vocabulary and one model folder per mapping
+    attempt (it is emptied first). ``known_camera`` fixes the intrinsics of every image (kept
+    fixed unless ``options.refine_known_intrinsics``); its size must match the images.
+
+    Raises InputError for fewer than 3 images, mixed image sizes with shared intrinsics, a
+    known camera of the wrong size, or fewer than ``options.min_registered_fraction`` of the
+    images registered; the message says what to change.
+    """
+    with colmap_log_level():
+        return _run_sfm(Path(image_dir), Path(work_dir), options, known_camera, image_names, progress)
+
+
+def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera: Camera | None,
+             image_names: list[str] | None, progress: ProgressFn | None) -> SfmResult:
+    from nsim.sfm.frames import MIN_IMAGES, list_image_files
+
+    t_start = time.perf_counter()
+    names = list(image_names) if image_names is not None else [p.name for p in list_image_files(image_dir)]
+    if len(names) < MIN_IMAGES:
+        raise InputError(f"{image_dir}: {len(names)} images to reconstruct; need at least {MIN_IMAGES}")
+    if len(set(names)) != len(names):
+        raise ValueError("image_names: names must be unique")
+    sizes = _image_sizes(image_dir, names)
+    if options.shared_intrinsics and len(set(sizes.values())) > 1:
+        first = names[0]
+        other = next(n for n in names if sizes[n] != sizes[first])
+        raise InputError(
+            f"{image_dir / other}: image is {sizes[other][0]}x{sizes[other][1]} but {first} is "
+            f"{sizes[first][0]}x{sizes[first][1]}; shared intrinsics need one image size "
+            "(resize the images or reconstruct with per-image intrinsics)")
+    if known_camera is not None:
+        bad = [n for n in names if sizes[n] != (known_camera.width, known_camera.height)]
+        if bad:
+            raise InputError(f"{image_dir / bad[0]}: image is {sizes[bad[0]][0]}x{sizes[bad[0]][1]} but the known "
+                             f"camera is {known_camera.width}x{known_camera.height}")
+    if work_dir.exists():
+        shutil.rmtree(work_dir)
+    work_dir.mkdir(parents=True)
+    db_path = work_dir / "database.db"
+    device = _resolve_device(options.device)
+    pycolmap.set_random_seed(options.seed)
+    model = options.camera_model if known_camera is None else camera_to_colmap(known_camera).model_name
+    wall: dict[str, float] = {}
+    report = progress or (lambda phase, done, total: None)
+    n = len(names)
+
+    # Features. The reader makes one camera (shared) or one per image; both are replaced below
+    # by the known camera or the first focal-length guess.
+    t = time.perf_counter()
+    report("features", 0, n)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = options.num_threads
+    extraction.use_gpu = device == pycolmap.Device.cuda
+    extraction.sift.max_num_features = options.max_features
+    mode = pycolmap.CameraMode.SINGLE if options.shared_intrinsics else pycolmap.CameraMode.PER_IMAGE
+    # Import first: image ids then follow the name order. Extraction alone numbers images in the
+    # order its threads finish, and the mapper's choices depend on the ids (not deterministic).
+    pycolmap.Database.open(db_path).close()
+    pycolmap.import_images(db_path, image_dir, camera_mode=mode, image_names=names, options=reader)
+    pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=mode, reader_options=reader,
+                              extraction_options=extraction, device=device)
+
+    def camera_for(guess: float | None) -> Callable[[pycolmap.Camera], pycolmap.Camera]:
+        def make(old: pycolmap.Camera) -> pycolmap.Camera:
+            if guess is None:
+                return camera_to_colmap(known_camera, old.camera_id)
+            return _guess_camera(model, old.width, old.height, guess, old.camera_id)
+        return make
+
+    guesses: list[float | None] = [None] if known_camera is not None else list(options.hfov_guesses)
+    _set_cameras(db_path, camera_for(guesses[0]), reverify=False, seed=options.seed, num_threads=options.num_threads)
+    wall["features"] = time.perf_counter() - t
+    report("features", n, n)
+
+    t = time.perf_counter()
+    report("matching", 0, 1)
+    _match(db_path, work_dir, n, options, device)
+    wall["matching"] = time.perf_counter() - t
+    report("matching", 1, 1)
+
+    # Mapping, retried with the next focal-length guess while too few images register.
+    t = time.perf_counter()
+    refine = known_camera is None or options.refine_known_intrinsics
+    best: tuple[pycolmap.Reconstruction | None, int] = (None, 0)
+    attempts: list[dict[str, Any]] = []
+    registered = [0]
+
+    def on_image() -> None:
+        registered[0] += 1
+        report("mapping", min(registered[0], n), n)
+
+    for k, guess in enumerate(guesses):
+        if k > 0:
+            # Perspective pairs were verified without a focal prior: only fisheye needs re-verifying.
+            _set_cameras(db_path, camera_for(guess), reverify=model in FISHEYE_MODELS, seed=options.seed,
+                         num_threads=options.num_threads)
+        registered[0] = 0
+        report("mapping", 0, n)
+        rec, n_models = _map_once(db_path, image_dir, work_dir / f"attempt{k}", names, options, refine, on_image)
+        n_reg = rec.num_reg_images() if rec is not None else 0
+        attempts.append({"hfov_guess_deg": guess, "registered": n_reg, "models": n_models})
+        log.info("mapping attempt %d (hfov guess %s deg): %d of %d images registered in %d model(s)",
+                 k, guess, n_reg, n, n_models)
+        if rec is not None and (best[0] is None or n_reg > best[0].num_reg_images()):
+            best = (rec, n_models)
+        if n_reg >= options.retry_below_fraction * n:
+            break
+    rec, n_models = best
+    # Sequential matching means ordered frames: a pose that jumps away from both neighbours is wrong.
+    rejected = _reject_pose_jumps(rec, names) if rec is not None and options.matcher == "sequential" else []
+    wall["mapping"] = time.perf_counter() - t
+    n_reg = rec.num_reg_images() if rec is not None else 0
+    if n_reg < max(options.min_registered_fraction * n, 2) or rec is None:
+        raise InputError(
+            f"only {n_reg} of {n} frames registered (need at least {options.min_registered_fraction:.0%}): "
+            "capture with more overlap between frames (move the camera more slowly) or select more frames (--frames)")
+
+    t = time.perf_counter()
+    report("bundle_adjustment", 0, 1)
+    _global_bundle_adjustment(rec, options, refine)
+    wall["bundle_adjustment"] = time.perf_counter() - t
+    report("bundle_adjustment", 1, 1)
+    wall["total"] = time.perf_counter() - t_start
+
+    model_dir = work_dir / "sparse"
+    model_dir.mkdir()
+    rec.write(model_dir)
+    return _result(rec, names, n_models, attempts, "cuda" if device == pycolmap.Device.cuda else "cpu", wall,
+                   rejected)
+
+
+def _result(rec: pycolmap.Reconstruction, names: list[str], n_models: int, attempts: list[dict[str, Any]],
+            device: str, wall: dict[str, float], rejected: list[str] = ()) -> SfmResult:
+    cam_to_world, cameras = {}, {}
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        w2c = np.eye(4)
+        w2c[:3, :] = image.cam_from_world().matrix()
+        cam_to_world[image.name] = invert_se3(w2c)
+        cameras[image.name] = camera_from_colmap(image.camera)
+    ids = sorted(rec.points3D)
+    pts = [rec.points3D[i] for i in ids]
+    xyz = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
+    track = np.array([p.track.length() for p in pts], dtype=np.int64)
+    err, mean_err = _reprojection_errors(rec, ids, xyz, cam_to_world, cameras)
+    stats = SfmStats(
+        images_given=len(names),
+        images_registered=len(cam_to_world),
+        unregistered=tuple(n for n in names if n not in cam_to_world),
+        rejected=tuple(rejected),
+        mean_reprojection_error_px=mean_err,
+        mean_track_length=float(rec.compute_mean_track_length()),
+        num_points3d=len(ids),
+        num_models=n_models,
+        attempts=tuple(attempts),
+        device=device,
+        phase_wall_s={k: round(v, 3) for k, v in wall.items()},
+    )
+    return SfmResult(rec, tuple(names), cam_to_world, cameras, xyz, rgb, err, track, stats)
+
+
+def _reprojection_errors(rec: pycolmap.Reconstruction, ids: list[int], xyz: np.ndarray,
+                         cam_to_world: dict[str, np.ndarray], cameras: dict[str, Camera]) -> tuple[np.ndarray, float]:
+    """Per-point mean reprojection error (px) and their mean, projected with nsim's cameras.
+
+    Same definitions as COLMAP's ``Point3D.error`` and ``compute_mean_reprojection_error``
+    (equal to 1e-13 px on perspective models), but COLMAP's own ``Point3D.error`` is astronomically large (1e153) for a fisheye point seen at
+    exactly 90 deg off-axis, which made the mean meaningless; nsim's fisheye model handles it.
+    """
+    row = {pid: k for k, pid in enumerate(ids)}
+    err_sum = np.zeros(len(ids))
+    count = np.zeros(len(ids))
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        obs = image.get_observation_points2D()
+        if not obs:
+            continue
+        uv_obs = np.array([p.xy for p in obs], dtype=np.float64) - 0.5  # COLMAP -> OpenCV pixel centres
+        k = np.array([row[p.point3D_id] for p in obs])
+        w2c = invert_se3(cam_to_world[image.name])
+        uv, _ = cameras[image.name].project(xyz[k] @ w2c[:3, :3].T + w2c[:3, 3])
+        np.add.at(err_sum, k, np.linalg.norm(uv - uv_obs, axis=1))
+        np.add.at(count, k, 1.0)
+    per_point = err_sum / np.maximum(count, 1.0)
+    return per_point, float(per_point.mean()) if len(per_point) else 0.0
+
+
+def transform_result(result: SfmResult, s: float, R: np.ndarray, t: np.ndarray) -> SfmResult:
+    """The same reconstruction in a new world frame ``x -> s R x + t``; ``result`` is not modified.
+
+    Poses, points and the pycolmap model (a copy, transformed with ``Reconstruction.transform``)
+    move together; intrinsics, errors in pixels and statistics are unchanged.
+    """
+    from nsim.sfm.align import apply_sim3_to_points, apply_sim3_to_poses
+
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64).reshape(3)
+    rec = pycolmap.Reconstruction(result.reconstruction)
+    rec.transform(pycolmap.Sim3d(float(s), pycolmap.Rotation3d(R), t))
+    c2w = {name: apply_sim3_to_poses(s, R, t, pose) for name, pose in result.cam_to_world.items()}
+    return dataclasses.replace(result, reconstruction=rec, cam_to_world=c2w,
+                               points_xyz=apply_sim3_to_points(s, R, t, result.points_xyz))
+
+
+def write_model(result: SfmResult, model_dir: str | os.PathLike) -> Path:
+    """Write the COLMAP model (binary cameras.bin, images.bin, points3D.bin, rigs.bin, frames.bin)."""
+    out = Path(model_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result.reconstruction.write(out)
+    return out

@@ -1,0 +1,216 @@
+"""pycolmap SfM on the box room: conversions, accuracy, scale, gravity, determinism, bad input."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pycolmap
+import pytest
+
+from nsim.errors import InputError
+from nsim.geometry.cameras import Camera
+from nsim.io.images import write_image
+from nsim.sfm.align import (
+    apply_sim3_to_points,
+    fit_sim3,
+    gravity_align,
+    pose_errors,
+    scale_from_camera_height,
+)
+from nsim.sfm.colmap import (
+    SfmOptions,
+    camera_from_colmap,
+    camera_to_colmap,
+    initial_focal_px,
+    run_sfm,
+    transform_result,
+    write_model,
+)
+from tests.sfm.scene import room_diagonal_m
+
+CAMERAS = [
+    Camera("PINHOLE", 160, 120, 110.0, 112.0, 79.0, 60.5),
+    Camera("OPENCV", 160, 120, 110.0, 111.0, 80.2, 59.1, (-0.1, 0.02, 0.001, -0.002, 0.0)),
+    Camera("OPENCV", 160, 120, 110.0, 111.0, 80.2, 59.1, (-0.1, 0.02, 0.001, -0.002, 0.004)),
+    Camera.fisheye_spot_like(160, 120),
+]
+
+
+@pytest.mark.parametrize("camera", CAMERAS, ids=["pinhole", "opencv", "opencv_k3", "fisheye"])
+def test_camera_conversion_matches_pycolmap_projection(camera):
+    cam = camera_to_colmap(camera)
+    assert cam.has_prior_focal_length
+    assert camera_from_colmap(cam) == camera
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-0.5, 0.5, (50, 2)), rng.uniform(0.8, 2.0, 50)])
+    uv, valid = camera.project(points)
+    uv_colmap = cam.img_from_cam(points)
+    np.testing.assert_allclose(uv_colmap[valid], uv[valid] + 0.5, atol=1e-9)  # COLMAP's pixel centres
+
+
+def test_simple_radial_becomes_opencv():
+    cam = pycolmap.Camera.create_from_model_name(1, "SIMPLE_RADIAL", 100.0, 160, 120)
+    cam.params = [100.0, 80.5, 60.0, -0.05]
+    ours = camera_from_colmap(cam)
+    assert ours.model == "OPENCV" and ours.dist == (-0.05, 0.0, 0.0, 0.0, 0.0)
+    assert (ours.cx, ours.cy) == (80.0, 59.5)
+    points = np.array([[0.3, -0.2, 1.0], [0.0, 0.1, 2.0]])
+    np.testing.assert_allclose(cam.img_from_cam(points), ours.project(points)[0] + 0.5, atol=1e-9)
+
+
+def test_initial_focal_px():
+    assert initial_focal_px("PINHOLE", 320, 240, 90.0) == pytest.approx(160.0)
+    assert initial_focal_px("OPENCV_FISHEYE", 320, 240, 180.0) == pytest.approx(320 / np.pi)
+
+
+def _check_accuracy(result, capture, max_rot_deg: float, max_pos_fraction: float) -> None:
+    names = result.registered_names
+    assert len(names) >= 0.95 * len(capture.names)
+    rot, pos = pose_errors(result.poses_se3(names), capture.gt(names))
+    assert np.median(rot) < max_rot_deg
+    assert np.median(pos) < max_pos_fraction * room_diagonal_m()
+
+
+def test_reconstructs_the_box_room(pinhole_sfm, pinhole_capture):
+    stats = pinhole_sfm.stats
+    assert stats.images_given == len(pinhole_capture.names)
+    assert 0.0 < stats.mean_reprojection_error_px < 1.0
+    assert stats.mean_track_length > 2.0 and stats.num_points3d == len(pinhole_sfm.points_xyz) > 500
+    assert set(stats.phase_wall_s) == {"features", "matching", "mapping", "bundle_adjustment", "total"}
+    _check_accuracy(pinhole_sfm, pinhole_capture, 0.5, 0.01)
+    cam = pinhole_sfm.cameras[pinhole_sfm.registered_names[0]]
+    assert cam.model == "OPENCV" and cam.fx == pytest.approx(pinhole_capture.camera.fx, rel=0.03)
+    assert pinhole_sfm.points_rgb.dtype == np.uint8 and pinhole_sfm.points_rgb.shape == pinhole_sfm.points_xyz.shape
+
+
+def test_metric_scale_from_a_noisy_reference(pinhole_sfm, pinhole_capture):
+    names = pinhole_sfm.registered_names
+    gt = capture_centres = pinhole_capture.gt(names)[:, :3, 3]
+    noisy = capture_centres + np.random.default_rng(0).normal(0, 0.01, gt.shape)  # 1 cm noise
+    fit = fit_sim3(pinhole_sfm.poses_se3(names)[:, :3, 3], noisy)
+    metric = transform_result(pinhole_sfm, fit.s, fit.R, fit.t)
+    est = metric.poses_se3(names)[:, :3, 3]
+    i, j = np.triu_indices(len(names), 1)
+    ratio = np.linalg.norm(est[i] - est[j], axis=1) / np.linalg.norm(gt[i] - gt[j], axis=1)
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.02)
+    assert fit.rms_m < 0.03
+    # the model moved with the poses, and the input result did not
+    image = metric.reconstruction.find_image_with_name(names[0])
+    np.testing.assert_allclose(image.projection_center(), est[0], atol=1e-9)
+    assert not np.allclose(pinhole_sfm.poses_se3(names)[:, :3, 3], est)
+
+
+def test_gravity_alignment_recovers_z_up(pinhole_sfm, pinhole_capture):
+    names = pinhole_sfm.registered_names
+    fit = gravity_align(pinhole_sfm.points_xyz, pinhole_sfm.poses_se3(names))
+    assert fit.floor_found
+    up = transform_result(pinhole_sfm, 1.0, fit.R, fit.t)
+    gt = pinhole_capture.gt(names)
+    scale = scale_from_camera_height(up.poses_se3(names), float(np.median(gt[:, 2, 3])))
+    metric = transform_result(up, scale, np.eye(3), np.zeros(3))
+    est = metric.poses_se3(names)
+    # heights above the floor are recovered directly; the rest only up to a rotation about z
+    np.testing.assert_allclose(est[:, 2, 3], gt[:, 2, 3], atol=0.03)
+    sim = fit_sim3(est[:, :3, 3], gt[:, :3, 3])
+    tilt_deg = np.degrees(np.arccos(np.clip(sim.R[2, 2], -1.0, 1.0)))
+    assert tilt_deg < 1.0 and sim.s == pytest.approx(1.0, abs=0.03)
+    floor = apply_sim3_to_points(scale, fit.R, scale * fit.t, pinhole_sfm.points_xyz)
+    assert np.quantile(floor[:, 2], 0.02) > -0.05  # nothing far below the floor
+
+
+def test_write_model_round_trip(pinhole_sfm, tmp_path):
+    out = write_model(pinhole_sfm, tmp_path / "sparse")
+    assert {p.name for p in out.iterdir()} >= {"cameras.bin", "images.bin", "points3D.bin"}
+    rec = pycolmap.Reconstruction(out)
+    assert rec.num_reg_images() == pinhole_sfm.stats.images_registered
+    assert rec.num_points3D() == pinhole_sfm.stats.num_points3d
+
+
+def test_known_intrinsics_stay_fixed(pinhole_capture, tmp_path):
+    phases = []
+    result = run_sfm(pinhole_capture.image_dir, tmp_path / "work", SfmOptions(matcher="exhaustive"),
+                     known_camera=pinhole_capture.camera, progress=lambda p, done, total: phases.append(p))
+    assert all(cam == pinhole_capture.camera for cam in result.cameras.values())
+    _check_accuracy(result, pinhole_capture, 0.5, 0.01)
+    assert [p for i, p in enumerate(phases) if p not in phases[:i]] == [
+        "features", "matching", "mapping", "bundle_adjustment"]
+    assert result.stats.attempts[0]["hfov_guess_deg"] is None
+
+
+def test_too_few_images(pinhole_capture, tmp_path):
+    with pytest.raises(InputError, match="2 images to reconstruct; need at least 3"):
+        run_sfm(pinhole_capture.image_dir, tmp_path / "w", image_names=pinhole_capture.names[:2])
+
+
+def test_mixed_sizes_with_shared_intrinsics(pinhole_capture, tmp_path):
+    d = tmp_path / "images"
+    shutil.copytree(pinhole_capture.image_dir, d)
+    write_image(d / "frame_00003.png", np.zeros((60, 80, 3), np.uint8))
+    with pytest.raises(InputError, match="frame_00003.png: image is 80x60 but frame_00000.png is 160x120"):
+        run_sfm(d, tmp_path / "w")
+
+
+def test_known_camera_of_the_wrong_size(pinhole_capture, tmp_path):
+    with pytest.raises(InputError, match="is 160x120 but the known camera is 320x240"):
+        run_sfm(pinhole_capture.image_dir, tmp_path / "w", known_camera=pinhole_capture.camera.scaled(2.0))
+
+
+def test_too_few_registered_is_an_input_error(pinhole_capture, tmp_path):
+    """5 overlapping views of the room and 9 unrelated noise images: 5 of 14 < 50% register."""
+    d = tmp_path / "images"
+    d.mkdir()
+    for name in pinhole_capture.names[:5]:
+        shutil.copy(pinhole_capture.image_dir / name, d / name)
+    rng = np.random.default_rng(0)
+    for k in range(9):
+        write_image(d / f"noise_{k}.png", rng.integers(0, 256, (120, 160, 3), dtype=np.uint8))
+    with pytest.raises(InputError, match=r"only \d of 14 frames registered .*more overlap"):
+        run_sfm(d, tmp_path / "w", SfmOptions(matcher="exhaustive", hfov_guesses_deg=(75.0,)))
+
+
+def test_fisheye_with_unknown_intrinsics(fisheye_capture, tmp_path):
+    result = run_sfm(fisheye_capture.image_dir, tmp_path / "work", SfmOptions(camera_model="OPENCV_FISHEYE"))
+    _check_accuracy(result, fisheye_capture, 0.5, 0.01)
+    cam = result.cameras[result.registered_names[0]]
+    assert cam.model == "OPENCV_FISHEYE" and cam.fx == pytest.approx(fisheye_capture.camera.fx, rel=0.03)
+    assert result.stats.mean_reprojection_error_px < 1.0  # COLMAP's own figure overflows at 90 deg
+
+
+def test_same_input_same_poses(pinhole_capture, tmp_path):
+    names = pinhole_capture.names[:12]
+    runs = [run_sfm(pinhole_capture.image_dir, tmp_path / f"w{k}", image_names=names) for k in range(2)]
+    assert runs[0].registered_names == runs[1].registered_names == names
+    for name in names:
+        np.testing.assert_array_equal(runs[0].cam_to_world[name], runs[1].cam_to_world[name])
+    np.testing.assert_array_equal(runs[0].points_xyz, runs[1].points_xyz)
+
+
+def test_a_pose_that_jumps_away_from_its_neighbours_is_rejected(pinhole_sfm):
+    from nsim.sfm.colmap import _reject_pose_jumps
+
+    names = pinhole_sfm.registered_names
+    rec = pycolmap.Reconstruction(pinhole_sfm.reconstruction)
+    assert _reject_pose_jumps(rec, names) == []
+    frame = rec.frame(rec.find_image_with_name(names[10]).frame_id)
+    old = frame.rig_from_world  # a mirrored registration: half a turn about the camera's y axis
+    frame.rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(np.array([0.0, np.pi, 0.0])) * old.rotation,
+                                            old.translation)
+    assert _reject_pose_jumps(rec, names) == [names[10]]
+    assert not rec.find_image_with_name(names[10]).has_pose
+    assert rec.num_reg_images() == len(names) - 1
+
+
+@pytest.mark.skipif(pycolmap.has_cuda, reason="pycolmap has CUDA here: nothing to fall back from")
+def test_cuda_without_pycolmap_cuda_falls_back_to_cpu(pinhole_capture, tmp_path, caplog):
+    result = run_sfm(pinhole_capture.image_dir, tmp_path / "w", SfmOptions(device="cuda", matcher="exhaustive"),
+                     image_names=pinhole_capture.names[:8])
+    assert result.stats.device == "cpu" and "without CUDA" in caplog.text
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not pycolmap.has_cuda, reason="pycolmap built without CUDA")
+def test_cuda_sift(pinhole_capture, tmp_path):
+    result = run_sfm(pinhole_capture.image_dir, tmp_path / "w", SfmOptions(device="cuda"))
+    assert result.stats.device == "cuda"
+    _check_accuracy(result, pinhole_capture, 0.5, 0.01)
