@@ -20,7 +20,7 @@ from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.stages import capture, simulate  # noqa: E402
+from nsim.stages import capture, reconstruct, simulate  # noqa: E402
 from nsim.workspace.store import Store, default_root  # noqa: E402
 
 
@@ -33,10 +33,25 @@ def step(name: str, fn):
 
 def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     ctx = RunContext(store=Store(workspace), device_spec=device, seed=seed)
+    captures = {}
     for camera in ("pinhole", "fisheye"):
-        cfg = load_config(capture.Config, stage="capture", preset=preset, overrides=[f"camera={camera}"])
+        overrides = [f"camera={camera}"]
+        if preset == "tiny" and camera == "pinhole":
+            # SIFT cannot chain 40 frames at 96x72: the tiny demo reconstructs 100 frames at 160x120
+            overrides += ["n_frames=100", "width=160", "height=120"]
+        cfg = load_config(capture.Config, stage="capture", preset=preset, overrides=overrides)
         out = step(f"capture synth ({camera})", lambda cfg=cfg: capture.run(capture.Inputs(), cfg, ctx))
         ctx.store.set_ref(f"capture/demo-{camera}", out.capture)
+        captures[camera] = out.capture
+
+    # Poses from the pinhole capture's frames, made metric by its ground-truth trajectory as a
+    # robot's odometry would be (a TUM file matched by timestamp).
+    cap = ctx.store.get(captures["pinhole"])
+    rec_cfg = load_config(reconstruct.Config, stage="reconstruct", preset=preset,
+                          overrides=[f"frames={cap.manifest['config']['n_frames']}"])
+    rec_inputs = reconstruct.Inputs(capture=cap.id, reference=cap.file("gt_trajectory.tum"))
+    out = step("reconstruct (pinhole)", lambda: reconstruct.run(rec_inputs, rec_cfg, ctx))
+    ctx.store.set_ref("poses/demo", out.poses)
 
     repo = Path(__file__).resolve().parents[1]
     sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)

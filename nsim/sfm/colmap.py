@@ -44,6 +44,7 @@ import dataclasses
 import logging
 import math
 import os
+import re
 import shutil
 import time
 from collections.abc import Callable, Iterator
@@ -483,13 +484,14 @@ def _global_bundle_adjustment(rec: pycolmap.Reconstruction, options: SfmOptions,
 
 @contextlib.contextmanager
 def colmap_log_level(level: int | None = None) -> Iterator[None]:
-    """Set COLMAP's (glog) minimum log level for a block: 0 info, 1 warning, 2 error.
+    """Set COLMAP's (glog) minimum log level for a block: 0 info, 1 warning, 2 error, 3 fatal.
 
-    Default: info when this module's logger is at DEBUG, else errors only (COLMAP's INFO and
-    WARNING output is per image and per pair, far too much for a terminal).
+    Default: info when this module's logger is at DEBUG (``nsim -vv``), warnings and errors at
+    INFO (``-v``), else fatal only: COLMAP's messages are per image and per pair, far too much
+    for a terminal, and nsim reports failures itself in one line.
     """
     if level is None:
-        level = 0 if log.isEnabledFor(logging.DEBUG) else 2
+        level = 0 if log.isEnabledFor(logging.DEBUG) else 1 if log.isEnabledFor(logging.INFO) else 3
     old = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = level
     try:
@@ -516,8 +518,46 @@ def run_sfm(
     known camera of the wrong size, or fewer than ``options.min_registered_fraction`` of the
     images registered; the message says what to change.
     """
-    with colmap_log_level():
+    with colmap_log_level(), native_stderr_to_log():
         return _run_sfm(Path(image_dir), Path(work_dir), options, known_camera, image_names, progress)
+
+
+_NATIVE_LINE = re.compile(r"^([IWEF]\d{8} |WARNING clustering |Clustering |Sampling )")
+
+
+@contextlib.contextmanager
+def native_stderr_to_log() -> Iterator[None]:
+    """Route what C++ code (COLMAP's glog, faiss) prints on file descriptor 2 into this logger.
+
+    Some COLMAP messages (bundle adjustment headings) ignore ``minloglevel``, and faiss warns
+    with ``fprintf(stderr)``; neither belongs on a user's terminal. The block's fd-2 output goes
+    to a temporary file; afterwards native lines are logged at DEBUG (``nsim -vv`` shows them)
+    and any other line (Python's own output in the block) is written back to stderr.
+    """
+    import sys
+    import tempfile
+
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # stderr replaced (pytest capture, notebooks)
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        os.dup2(sink.fileno(), fd)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+            sink.seek(0)
+            for line in sink.read().decode(errors="replace").splitlines():
+                if _NATIVE_LINE.match(line):
+                    log.debug("colmap: %s", line)
+                elif line.strip():
+                    sys.stderr.write(line + "\n")
 
 
 def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera: Camera | None,

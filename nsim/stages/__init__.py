@@ -17,6 +17,7 @@ from nsim.errors import WorkspaceError
 # stage name (as written in manifests) -> module
 STAGE_MODULES: dict[str, str] = {
     "capture": "nsim.stages.capture",
+    "reconstruct": "nsim.stages.reconstruct",
     "simulate": "nsim.stages.simulate",
 }
 

@@ -175,6 +175,9 @@ class Pending:
 
     dir: Path
     summary: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # run facts that vary between identical runs (per-phase wall times): kept in the manifest's
+    # ``timing``, outside the id, so reruns keep their digest
+    timing: dict[str, Any] = dataclasses.field(default_factory=dict)
     artifact: Artifact | None = None
     raced: bool = False
 
@@ -333,6 +336,7 @@ class Store:
                 "wall_time_s": round(time.time() - t0, 3),
                 "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "host": socket.gethostname(),
+                **pending.timing,
             }
             mpath = tmp / MANIFEST
             with open(mpath, "wb") as f:

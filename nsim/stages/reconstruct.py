@@ -1,0 +1,350 @@
+"""``nsim reconstruct``: a video, a folder of photos or a capture in, metric camera poses out.
+
+Inputs are files (a video, an image folder, optional reference/intrinsics files) or a capture
+artifact. Files are not artifacts: their content digests enter the action key, so editing a
+file never serves a stale result. ``--import transforms.json`` skips SfM and brings poses
+from nerfstudio / PolyCam / Record3D exports (OpenGL convention) into the workspace.
+
+Artifact layout (kind ``poses``)::
+
+    transforms.json      nerfstudio convention, metric (unless report.json says the scale is
+                         arbitrary), per-frame intrinsics and distortion, timestamps for video
+    images/              the selected frames (PNG, lossless)
+    sparse/              the COLMAP model (cameras.bin, images.bin, points3D.bin), metric, z up
+    sparse_points.ply    the sparse points with colour, reprojection error and track length
+    report.json          images given/registered, mean reprojection error, mean track length,
+                         number of 3D points, scale source and Sim(3) residual, the options used
+    top_down.png         the camera path over the sparse points, from above
+
+Wall time per phase is in the manifest's ``timing`` (``nsim show``), outside the artifact's
+digest, so that a rerun keeps the same id.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.config import from_dict, param
+from nsim.context import RunContext
+from nsim.errors import InputError
+from nsim.progress import progress_bar
+
+STAGE = "reconstruct"
+VERSION = 1
+CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
+MATCHERS = ("sequential", "exhaustive")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    frames: int = param(150, ge=3, le=100_000, help="about this many frames are taken from a video")
+    blur_ratio: float = param(0.4, ge=0.0, le=1.0, help="drop frames sharper than this fraction of the video's norm")
+    dedup_threshold: float = param(0.01, ge=0.0, help="drop frames closer than this to the last kept one")
+    camera_model: str = param("SIMPLE_RADIAL", choices=CAMERA_MODELS)
+    shared_intrinsics: bool = True
+    matcher: str = param("sequential", choices=MATCHERS)
+    overlap: int = param(10, ge=1, help="sequential matching: each frame against this many next ones")
+    loop_detection: bool = True
+    max_features: int = param(8192, ge=64)
+    min_registered_fraction: float = param(0.5, gt=0.0, le=1.0)
+    max_dt_s: float = param(0.02, gt=0.0, help="largest timestamp gap when matching a reference")
+
+
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """What to reconstruct and how to scale it.
+
+    source: a video file, an image folder, or (``capture``) a capture artifact id whose video
+    is used; reference: transforms.json or TUM file with metric poses; intrinsics: a
+    transforms.json / YAML / JSON camera file; known_distance: (x1, y1, z1, x2, y2, z2, d_m) in
+    the frame of an unscaled run; camera_height_m: the capture's mean camera height.
+    """
+
+    source: Path | None = None
+    capture: str | None = None
+    reference: Path | None = None
+    intrinsics: Path | None = None
+    known_distance: tuple[float, ...] | None = None
+    camera_height_m: float | None = None
+    import_transforms: Path | None = None
+
+    def ids(self) -> dict[str, str]:
+        return {"capture": self.capture} if self.capture else {}
+
+    def validate(self) -> None:
+        sources = [x is not None for x in (self.source, self.capture, self.import_transforms)]
+        if sum(sources) != 1:
+            raise InputError("reconstruct: give exactly one of a video/image folder, a capture, or --import")
+        scales = [x is not None for x in (self.reference, self.known_distance, self.camera_height_m)]
+        if sum(scales) > 1:
+            raise InputError("reconstruct: give at most one of --reference, --known-distance, --camera-height")
+        for name in ("source", "reference", "intrinsics", "import_transforms"):
+            p = getattr(self, name)
+            if p is not None and not Path(p).exists():
+                raise InputError(f"{p}: no such file or directory")
+        if self.known_distance is not None:
+            kd = self.known_distance
+            if len(kd) != 7 or not np.all(np.isfinite(kd)) or kd[6] <= 0:
+                raise InputError("--known-distance: expected X1 Y1 Z1 X2 Y2 Z2 D with finite values and D > 0 (metres)")
+        if self.camera_height_m is not None and not (np.isfinite(self.camera_height_m) and self.camera_height_m > 0):
+            raise InputError(f"--camera-height: expected a height > 0 in metres, got {self.camera_height_m}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    poses: str
+    cache_hit: bool = False
+
+
+# ----------------------------------------------------------------------------------------------
+# Action key: file inputs are digested by content
+
+
+def _digest_path(path: Path) -> str:
+    h = hashlib.sha256()
+    if path.is_dir():
+        for p in sorted(path.rglob("*")):
+            if p.is_file():
+                h.update(p.relative_to(path).as_posix().encode() + b"\0")
+                h.update(_file_digest(p).encode())
+    else:
+        h.update(_file_digest(path).encode())
+    return h.hexdigest()
+
+
+def _file_digest(path: Path) -> str:
+    from nsim.workspace.store import sha256_file
+
+    return sha256_file(path)[0]
+
+
+def file_digests(inputs: Inputs) -> dict[str, str]:
+    return {
+        name: _digest_path(Path(p))
+        for name in ("source", "reference", "intrinsics", "import_transforms")
+        if (p := getattr(inputs, name)) is not None
+    }
+
+
+def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str) -> str:
+    files = file_digests(inputs)
+    extra = {
+        "files": files,
+        "known_distance": list(inputs.known_distance) if inputs.known_distance else None,
+        "camera_height_m": inputs.camera_height_m,
+        "device": device,
+    }
+    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
+    inputs.validate()
+    if inputs.capture is not None:
+        ctx.store.resolve(inputs.capture, kind="capture")
+    device = "cpu" if inputs.import_transforms is not None else ("cuda" if ctx.device.startswith("cuda") else "cpu")
+    key = action_key(inputs, cfg, ctx, device)
+    if not ctx.force and (hit := ctx.store.lookup(key)) is not None:
+        return Outputs(poses=hit.id, cache_hit=True)
+    with ctx.store.publish(
+        kind="poses", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(), seed=ctx.seed
+    ) as out:
+        if inputs.import_transforms is not None:
+            summary = import_transforms(inputs.import_transforms, out.dir)
+        else:
+            summary = reconstruct(inputs, cfg, ctx, device, out.dir, out.timing)
+        out.summary.update(summary)
+        out.summary["file_inputs"] = file_digests(inputs)
+        out.summary["scale_inputs"] = {
+            "known_distance": list(inputs.known_distance) if inputs.known_distance else None,
+            "camera_height_m": inputs.camera_height_m,
+        }
+    return Outputs(poses=out.ref)
+
+
+def _known_camera(path: Path | None):
+    """A known camera from a transforms.json (its first frame) or a YAML/JSON camera dict."""
+    if path is None:
+        return None
+    from nsim.config import read_yaml
+    from nsim.geometry.cameras import Camera
+    from nsim.io.transforms_json import read_transforms
+
+    if path.suffix == ".json":
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}: malformed JSON at line {exc.lineno}: {exc.msg}") from None
+        if isinstance(data, dict) and ("frames" in data or "fl_x" in data):
+            return read_transforms(path).frames[0].camera
+    else:
+        data = read_yaml(path, "intrinsics")
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a camera mapping (model, width, height, fx, fy, cx, cy, dist)")
+    try:
+        return Camera.from_dict(data)
+    except (ValueError, TypeError, KeyError) as exc:
+        raise InputError(f"{path}: not a camera: {exc}") from None
+
+
+def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_dir: Path,
+                timing: dict[str, Any]) -> dict[str, Any]:
+    from nsim.io.ply import write_ply
+    from nsim.io.transforms_json import Frame, TransformsData, write_transforms
+    from nsim.sfm.colmap import SfmOptions, run_sfm, write_model
+    from nsim.sfm.frames import load_image_folder, select_video_frames, write_frames
+    from nsim.sfm.metric import load_reference, to_metric
+    from nsim.sfm.plot import write_top_down_png
+
+    phases: dict[str, float] = {}
+    t0 = time.perf_counter()
+    known_camera = _known_camera(inputs.intrinsics)
+    reference = None
+    if inputs.reference is not None:
+        # named by file name only: where the file lies must not change the artifact's bytes
+        reference = dataclasses.replace(load_reference(inputs.reference), source=Path(inputs.reference).name)
+    capture_times: dict[str, float] = {}
+    if inputs.capture is not None:
+        # the capture's lossless frames (its video is mp4v-compressed, as a phone's would be)
+        from nsim.io.transforms_json import read_transforms
+
+        art = ctx.store.get(ctx.store.resolve(inputs.capture, kind="capture"))
+        source = art.path / "images"
+        capture_times = {Path(f.file_path).name: f.timestamp_s
+                         for f in read_transforms(art.file("transforms.json")).frames if f.timestamp_s is not None}
+    else:
+        source = Path(inputs.source)
+    with progress_bar(None, "selecting frames", ctx.show_progress) as bar:
+        if source.is_dir():
+            frames = load_image_folder(source, shared_intrinsics=cfg.shared_intrinsics)
+        elif source.suffix.lower() in VIDEO_SUFFIXES:
+            frames = select_video_frames(source, cfg.frames, cfg.blur_ratio, cfg.dedup_threshold,
+                                         progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
+        else:
+            raise InputError(f"{source}: expected a video ({', '.join(VIDEO_SUFFIXES)}) or a folder of images")
+    write_frames(frames, out_dir / "images")
+    phases["frame_selection_s"] = time.perf_counter() - t0
+
+    options = SfmOptions(
+        camera_model=cfg.camera_model, shared_intrinsics=cfg.shared_intrinsics, matcher=cfg.matcher,
+        overlap=cfg.overlap, loop_detection=cfg.loop_detection, max_features=cfg.max_features, device=device,
+        seed=ctx.seed, min_registered_fraction=cfg.min_registered_fraction,
+    )
+    with tempfile.TemporaryDirectory(prefix="nsim-sfm-") as work, \
+            progress_bar(None, "structure from motion", ctx.show_progress) as bar:
+        result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,
+                         progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
+    timestamps = {f.name: f.timestamp_s for f in frames if f.timestamp_s is not None} or capture_times or None
+    kd = None
+    if inputs.known_distance is not None:
+        v = np.asarray(inputs.known_distance, dtype=float)
+        kd = (v[:3], v[3:6], float(v[6]))
+    t1 = time.perf_counter()
+    result, scale = to_metric(result, timestamps, reference=reference, known_distance=kd,
+                              camera_height_m=inputs.camera_height_m, max_dt_s=cfg.max_dt_s, seed=ctx.seed)
+    phases.update({f"{k}_s": v for k, v in result.stats.phase_wall_s.items()} if result.stats.phase_wall_s else {})
+    phases["scale_s"] = time.perf_counter() - t1
+
+    names = result.registered_names
+    tframes = [
+        Frame(file_path=f"images/{n}", cam_to_world=result.cam_to_world[n], camera=result.cameras[n],
+              timestamp_s=(timestamps or {}).get(n))
+        for n in names
+    ]
+    write_transforms(out_dir / "transforms.json", TransformsData(frames=tframes, extra={"nsim_scale": scale.source}))
+    write_model(result, out_dir / "sparse")
+    write_ply(out_dir / "sparse_points.ply", result.points_xyz.astype(np.float32),
+              rgb=result.points_rgb.astype(np.uint8),
+              fields={"error_px": result.points_error_px.astype(np.float32),
+                      "track_length": result.points_track_length.astype(np.uint16)})
+    stats = result.stats.to_dict()
+    stats.pop("phase_wall_s", None)
+    report = {
+        "source": f"capture {inputs.capture[:12]}" if inputs.capture else source.name,
+        "images_given": stats.get("images_given"),
+        "images_registered": stats.get("images_registered"),
+        "mean_reprojection_error_px": stats.get("mean_reprojection_error_px"),
+        "mean_track_length": stats.get("mean_track_length"),
+        "num_points3d": stats.get("num_points3d"),
+        "scale": scale.to_dict(),
+        "sfm": stats,
+        "frames_selected": len(frames),
+    }
+    (out_dir / "report.json").write_text(json.dumps(_jsonable(report), indent=1, sort_keys=True) + "\n")
+    ref_xyz = reference.cam_to_world[:, :3, 3] if reference is not None else None
+    title = f"{source.name}: {len(names)}/{len(frames)} registered, scale: {scale.source}"
+    write_top_down_png(out_dir / "top_down.png", result.poses_se3(names), result.points_xyz, title=title,
+                       reference_xyz=ref_xyz)
+    timing["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
+    return {
+        "images_given": report["images_given"],
+        "images_registered": report["images_registered"],
+        "scale_source": scale.source,
+        "camera_model": cfg.camera_model,
+    }
+
+
+def import_transforms(path: Path, out_dir: Path) -> dict[str, Any]:
+    """Bring an exported transforms.json (nerfstudio / PolyCam / Record3D) and its images in."""
+    from nsim.io.transforms_json import Frame, TransformsData, read_transforms, write_transforms
+
+    data = read_transforms(path)
+    if not data.frames:
+        raise InputError(f"{path}: has no frames")
+    base = path.parent
+    (out_dir / "images").mkdir()
+    frames = []
+    for i, f in enumerate(data.frames):
+        src = (base / f.file_path).resolve()
+        if not src.is_file():
+            raise InputError(f"{path}: frames[{i}].file_path: {f.file_path} does not exist")
+        name = f"frame_{i:05d}{src.suffix.lower()}"
+        shutil.copyfile(src, out_dir / "images" / name)
+        frames.append(Frame(file_path=f"images/{name}", cam_to_world=f.cam_to_world, camera=f.camera,
+                            timestamp_s=f.timestamp_s))
+    write_transforms(out_dir / "transforms.json", TransformsData(frames=frames, extra={"nsim_scale": "import"}))
+    report = {"source": path.name, "images_given": len(frames), "images_registered": len(frames),
+              "scale": {"source": "import", "message": "poses imported as given (assumed metric)"}}
+    (out_dir / "report.json").write_text(json.dumps(report, indent=1, sort_keys=True) + "\n")
+    return {"images_given": len(frames), "images_registered": len(frames), "scale_source": "import"}
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
+
+
+def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
+    """Rebuild from the recorded capture; artifacts made from files need those files again."""
+    summary = manifest.get("summary", {})
+    if "capture" not in manifest.get("inputs", {}) or summary.get("file_inputs"):
+        raise InputError("this poses artifact was made from files (video, images or a reference), which the "
+                         "workspace does not hold: rerun nsim reconstruct on them with --force to compare")
+    scale = summary.get("scale_inputs", {})
+    kd = scale.get("known_distance")
+    cfg = from_dict(Config, manifest["config"])
+    ctx.force = True
+    inputs = Inputs(capture=manifest["inputs"]["capture"], known_distance=tuple(kd) if kd else None,
+                    camera_height_m=scale.get("camera_height_m"))
+    return run(inputs, cfg, ctx).poses
