@@ -265,13 +265,18 @@ def read_yaml(path: Path, what: str = "config") -> Any:
         raise ConfigError(f"{path}: {what} file not found") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read {what} file ({exc.__class__.__name__})") from None
+    return parse_yaml(text, path)
+
+
+def parse_yaml(text: str, path: str | os.PathLike[str], error: type[Exception] = ConfigError) -> Any:
+    """``yaml.safe_load`` whose failure is one ``error`` naming the file and line."""
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
+        where = f" line {mark.line + 1}:" if mark is not None else ""
         problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise ConfigError(f"{path}:{where}: malformed YAML: {problem}") from None
+        raise error(f"{path}:{where} malformed YAML: {problem}") from None
 
 
 def preset_path(stage: str, preset: str) -> Path:

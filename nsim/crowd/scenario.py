@@ -406,15 +406,9 @@ def read_scenario_file(path: str | Path) -> Any:
             ) from None
         except ValueError as exc:
             raise InputError(f"{path}: malformed JSON: {exc}") from None
-    import yaml
+    from nsim.config import parse_yaml
 
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" line {mark.line + 1}:" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise InputError(f"{path}:{where} malformed YAML: {problem}") from None
+    return parse_yaml(text, path, InputError)
 
 
 # ----------------------------------------------------------------------------------------------
