@@ -20,7 +20,7 @@ from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.stages import capture, reconstruct, simulate  # noqa: E402
+from nsim.stages import capture, reconstruct, simulate, train_scene  # noqa: E402
 from nsim.workspace.store import Store, default_root  # noqa: E402
 
 
@@ -52,6 +52,13 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     rec_inputs = reconstruct.Inputs(capture=cap.id, reference=cap.file("gt_trajectory.tum"))
     out = step("reconstruct (pinhole)", lambda: reconstruct.run(rec_inputs, rec_cfg, ctx))
     ctx.store.set_ref("poses/demo", out.poses)
+
+    # The scene NeRF on those poses (the tiny demo trains a few hundred steps: it checks the path).
+    ts_overrides = ["optim.steps=300"] if preset == "tiny" else []
+    ts_cfg = load_config(train_scene.Config, stage="train_scene", preset=preset, overrides=ts_overrides)
+    ts_inputs = train_scene.Inputs(poses=out.poses)
+    out = step("train-scene", lambda: train_scene.run(ts_inputs, ts_cfg, ctx))
+    ctx.store.set_ref("scene/demo", out.scene)
 
     repo = Path(__file__).resolve().parents[1]
     sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)

@@ -18,6 +18,7 @@ from nsim.errors import WorkspaceError
 STAGE_MODULES: dict[str, str] = {
     "capture": "nsim.stages.capture",
     "reconstruct": "nsim.stages.reconstruct",
+    "train_scene": "nsim.stages.train_scene",
     "simulate": "nsim.stages.simulate",
 }
 

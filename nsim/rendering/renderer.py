@@ -1,0 +1,276 @@
+"""Rendering API for the later stages: any camera model and pose, LiDAR beams, chunked.
+
+Two ways to render the same model:
+
+``method="proposal"``
+    The proposal sampler the model was trained with (``SceneModel.render_proposal``).
+``method="march"``
+    Ray marching with a constant step ``step_m`` from near to far, in blocks of
+    ``block_steps`` samples, with early ray termination (a ray stops once its transmittance
+    falls below ``stop_transmittance``), colour evaluated only where a sample's weight exceeds
+    ``color_weight_threshold``, and, with an :class:`~nsim.rendering.occupancy.OccupancyGrid`,
+    no field evaluation at all in free cells (empty-space skipping). Without the grid and with
+    ``stop_transmittance = 0`` every sample is evaluated: the dense reference.
+
+Every entry point returns a :class:`~nsim.rendering.model.RenderOutput`; with
+``return_samples=True`` it carries the per-sample ``(t_starts, t_ends, sigma, rgb)`` of the
+samples that were evaluated, so a later renderer can merge them with another field's samples
+along the same rays (``nsim.rendering.model.composite``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from nsim.config import param
+from nsim.rendering import volume
+from nsim.rendering.model import RaySamples, RenderOutput, SceneModel
+from nsim.rendering.occupancy import OccupancyGrid
+from nsim.rendering.rays import Rays, make_rays
+
+METHODS = ("proposal", "march")
+AUTO = "auto"  # march with the grid when one is given, else the proposal sampler
+
+
+@dataclass(frozen=True)
+class MarchConfig:
+    """The marching renderer. step_m: sample spacing along the ray (metres)."""
+
+    step_m: float = param(0.01, gt=0.0)
+    block_steps: int = param(64, ge=1)
+    stop_transmittance: float = param(1e-4, ge=0.0, lt=1.0)
+    color_weight_threshold: float = param(1e-4, ge=0.0)
+
+
+@dataclass
+class _Acc:
+    rgb: Tensor
+    depth: Tensor
+    acc: Tensor
+    trans: Tensor
+
+
+@torch.no_grad()
+def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg: MarchConfig = MarchConfig(),
+          appearance: str | int | Tensor = "mean", return_samples: bool = False) -> RenderOutput:
+    """Render ``rays`` by marching (see the module docstring). All rays in one call: chunk outside."""
+    n = len(rays)
+    device = rays.origins.device
+    length = (rays.far - rays.near).clamp(min=0.0)
+    n_steps = max(1, int(math.ceil(float(length.max()) / cfg.step_m))) if n else 1
+    acc = _Acc(torch.zeros(n, 3, device=device), torch.zeros(n, device=device), torch.zeros(n, device=device),
+               torch.ones(n, device=device))
+    weights_all = torch.zeros(n, n_steps, device=device)
+    kept: list[tuple[Tensor, Tensor, Tensor, Tensor, Tensor]] = []  # (ray, step, t0, sigma, rgb) of evaluated samples
+    alive = torch.arange(n, device=device)
+    for start in range(0, n_steps, cfg.block_steps):
+        if alive.numel() == 0:
+            break
+        k = torch.arange(start, min(n_steps, start + cfg.block_steps), device=device)
+        t0 = rays.near[alive, None] + k[None, :] * cfg.step_m  # (A, K)
+        t1 = torch.minimum(t0 + cfg.step_m, rays.far[alive, None])
+        inside = t1 > t0
+        mid = 0.5 * (t0 + t1)
+        x = rays.origins[alive, None, :] + rays.dirs[alive, None, :] * mid[..., None]
+        todo = inside if grid is None else inside & grid.query(x)
+        sigma = torch.zeros_like(t0)
+        rgb = torch.zeros(*t0.shape, 3, device=device)
+        if bool(todo.any()):
+            s_todo, geo = model.field.density(x[todo])
+            sigma[todo] = s_todo.to(sigma.dtype)
+            weights_blk, trans_blk = volume.render_weights(sigma, (t1 - t0).clamp(min=0.0))
+            weights_blk = weights_blk * acc.trans[alive, None]
+            colour = todo & (weights_blk > cfg.color_weight_threshold)
+            if bool(colour.any()):
+                sel = colour[todo]  # the colour samples among the density samples
+                rows = torch.nonzero(colour, as_tuple=True)[0]
+                dirs = rays.dirs[alive][rows]
+                codes = model.field.appearance_codes(None, dirs.shape[0], appearance, model.train_mask)
+                rgb[colour] = model.field.color(geo[sel], dirs, codes).to(rgb.dtype)
+            acc.rgb[alive] += volume.accumulate(weights_blk, rgb)
+            acc.depth[alive] += (weights_blk * mid).sum(-1)
+            acc.acc[alive] += weights_blk.sum(-1)
+            # transmittance after the block: T * exp(-sum sigma delta)
+            acc.trans[alive] = acc.trans[alive] * trans_blk[:, -1] * torch.exp(-(sigma[:, -1] * (t1 - t0)[:, -1].clamp(min=0)))
+            weights_all[alive[:, None], k[None, :]] = weights_blk
+            if return_samples:
+                r, c = torch.nonzero(todo, as_tuple=True)
+                kept.append((alive[r], k[c], t0[r, c], sigma[r, c], rgb[r, c]))
+        done = t1[:, -1] >= rays.far[alive] - 1e-9
+        if cfg.stop_transmittance > 0:
+            done |= acc.trans[alive] < cfg.stop_transmittance
+        alive = alive[~done]
+    rgb = acc.rgb + (1.0 - acc.acc)[:, None] * model.background
+    t_mid_all = rays.near[:, None] + (torch.arange(n_steps, device=device)[None, :] + 0.5) * cfg.step_m
+    depth = acc.depth / acc.acc.clamp(min=volume.EPS)
+    depth = torch.where(acc.acc > volume.EPS, depth, rays.far)
+    median = volume.median_depth(weights_all, torch.minimum(t_mid_all, rays.far[:, None]))
+    samples = _pack_samples(kept, n, cfg.step_m, rays.far, device) if return_samples else None
+    return RenderOutput(rgb=rgb, depth=depth, depth_median=median, accumulation=acc.acc, weights=weights_all,
+                        samples=samples)
+
+
+def _pack_samples(kept, n: int, step_m: float, far: Tensor, device) -> RaySamples:
+    """Evaluated samples as padded ``(R, S_max)`` arrays in ray order (padding: empty intervals)."""
+    if not kept:
+        z = torch.zeros(n, 0, device=device)
+        return RaySamples(z, z, z, torch.zeros(n, 0, 3, device=device))
+    ray = torch.cat([k[0] for k in kept])
+    step = torch.cat([k[1] for k in kept])
+    t0 = torch.cat([k[2] for k in kept])
+    sigma = torch.cat([k[3] for k in kept])
+    rgb = torch.cat([k[4] for k in kept])
+    order = torch.argsort(ray * (step.max() + 1) + step)
+    ray, t0, sigma, rgb = ray[order], t0[order], sigma[order], rgb[order]
+    counts = torch.bincount(ray, minlength=n)
+    s_max = int(counts.max())
+    slot = torch.arange(ray.shape[0], device=device) - torch.repeat_interleave(torch.cumsum(counts, 0) - counts, counts)
+    out_t0 = far[:, None].expand(n, s_max).clone()
+    out_t1 = out_t0.clone()
+    out_sigma = torch.zeros(n, s_max, device=device)
+    out_rgb = torch.zeros(n, s_max, 3, device=device)
+    out_t0[ray, slot] = t0
+    out_t1[ray, slot] = torch.minimum(t0 + step_m, far[ray])
+    out_sigma[ray, slot] = sigma
+    out_rgb[ray, slot] = rgb
+    return RaySamples(out_t0, out_t1, out_sigma, out_rgb)
+
+
+def render_rays(model: SceneModel, rays: Rays, method: str = AUTO, grid: OccupancyGrid | None = None,
+                march_cfg: MarchConfig = MarchConfig(), chunk: int = 8192, appearance: str | int | Tensor = "mean",
+                return_samples: bool = False) -> RenderOutput:
+    """Render any rays in chunks of ``chunk`` rays (no gradients).
+
+    method: ``proposal``, ``march`` (with ``grid`` if given; without it every sample is
+    evaluated), or ``auto``: ``march`` when a grid is given, else ``proposal``.
+    """
+    if method == AUTO:
+        method = "march" if grid is not None else "proposal"
+    if method not in METHODS:
+        raise ValueError(f"render_rays: method must be one of {METHODS}, got {method!r}")
+    model.eval()
+    outs = []
+    with torch.no_grad():
+        for a in range(0, len(rays), chunk):
+            sub = rays[a : a + chunk]
+            if method == "proposal":
+                outs.append(model.render_proposal(sub, appearance=appearance, return_samples=return_samples))
+            else:
+                outs.append(march(model, sub, grid, march_cfg, appearance, return_samples))
+    return _concat(outs)
+
+
+def _pad_cat(tensors: list[Tensor], fill: float) -> Tensor:
+    s = max(t.shape[1] for t in tensors)
+    padded = []
+    for t in tensors:
+        if t.shape[1] < s:
+            pad = torch.full((t.shape[0], s - t.shape[1], *t.shape[2:]), fill, dtype=t.dtype, device=t.device)
+            t = torch.cat([t, pad], dim=1)
+        padded.append(t)
+    return torch.cat(padded)
+
+
+def _concat(outs: list[RenderOutput]) -> RenderOutput:
+    if len(outs) == 1:
+        return outs[0]
+    samples = None
+    if outs[0].samples is not None:
+        ss = [o.samples for o in outs]
+        far = torch.cat([s.t_ends.max(dim=1).values if s.t_ends.shape[1] else torch.zeros(s.t_ends.shape[0]) for s in ss])
+        t0 = _pad_cat([s.t_starts for s in ss], float("inf"))
+        t1 = _pad_cat([s.t_ends for s in ss], float("inf"))
+        t0 = torch.where(torch.isinf(t0), far[:, None].expand_as(t0), t0)
+        t1 = torch.where(torch.isinf(t1), far[:, None].expand_as(t1), t1)
+        samples = RaySamples(t0, t1, _pad_cat([s.sigma for s in ss], 0.0), _pad_cat([s.rgb for s in ss], 0.0))
+    return RenderOutput(
+        rgb=torch.cat([o.rgb for o in outs]),
+        depth=torch.cat([o.depth for o in outs]),
+        depth_median=torch.cat([o.depth_median for o in outs]),
+        accumulation=torch.cat([o.accumulation for o in outs]),
+        weights=_pad_cat([o.weights for o in outs], 0.0),
+        samples=samples,
+    )
+
+
+@dataclass
+class RenderedView:
+    """One camera view: rgb (H, W, 3) in [0, 1]; depth_z / depth_median_z: (H, W) z-depth
+    (metres along the optical axis, NaN where the pixel has no ray); range_m: (H, W) expected
+    distance along the pixel ray; accumulation: (H, W); samples: per-pixel samples (H*W rows) or None."""
+
+    rgb: np.ndarray
+    depth_z: np.ndarray
+    depth_median_z: np.ndarray
+    range_m: np.ndarray
+    accumulation: np.ndarray
+    samples: RaySamples | None = None
+
+
+def camera_rays(model: SceneModel, camera, cam_to_world: np.ndarray | Tensor) -> tuple[Rays, Tensor, Tensor]:
+    """Rays through every pixel of ``camera`` at ``cam_to_world (4, 4)`` (OpenCV axes).
+
+    Returns the rays (row-major pixels), the pixels' camera-axes directions ``(H*W, 3)`` and
+    a validity mask ``(H*W,)`` (pixels the camera model cannot unproject are invalid).
+    """
+    device = model.aabb.device
+    d = torch.as_tensor(np.asarray(camera.pixel_dirs_cam()), dtype=torch.float32).reshape(-1, 3)
+    valid = torch.isfinite(d).all(-1)
+    d = torch.where(valid[:, None], d, torch.tensor([0.0, 0.0, 1.0])).to(device)
+    c2w = torch.as_tensor(np.asarray(cam_to_world, dtype=np.float32) if not isinstance(cam_to_world, Tensor)
+                          else cam_to_world.float()).to(device)
+    dirs = d @ c2w[:3, :3].T
+    dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+    origins = c2w[:3, 3].expand_as(dirs)
+    cfg = model.sampler_cfg
+    rays = make_rays(origins, dirs, cfg.near_m, cfg.far_m, model.aabb if cfg.clip_rays_to_box else None)
+    return rays, d, valid.to(device)
+
+
+def render_camera(model: SceneModel, camera, cam_to_world: np.ndarray | Tensor, method: str = AUTO,
+                  grid: OccupancyGrid | None = None, march_cfg: MarchConfig = MarchConfig(), chunk: int = 8192,
+                  appearance: str | int | Tensor = "mean", return_samples: bool = False) -> RenderedView:
+    """Render one view of any camera model (``nsim.geometry.cameras.Camera``) at ``cam_to_world (4, 4)``."""
+    h, w = camera.height, camera.width
+    rays, dirs_cam, valid = camera_rays(model, camera, cam_to_world)
+    out = render_rays(model, rays, method, grid, march_cfg, chunk, appearance, return_samples)
+    z = dirs_cam[:, 2]
+    nan = torch.tensor(float("nan"), device=z.device)
+
+    def depth_z(r: Tensor) -> np.ndarray:
+        return torch.where(valid & (z > 1e-9), r * z, nan).view(h, w).cpu().numpy()
+
+    rgb = torch.where(valid[:, None], out.rgb.clamp(0.0, 1.0), 0.0)
+    return RenderedView(rgb=rgb.view(h, w, 3).cpu().numpy(), depth_z=depth_z(out.depth),
+                        depth_median_z=depth_z(out.depth_median), range_m=out.depth.view(h, w).cpu().numpy(),
+                        accumulation=out.accumulation.view(h, w).cpu().numpy(), samples=out.samples)
+
+
+def render_lidar(model: SceneModel, lidar_to_world: np.ndarray, lidar, method: str = AUTO,
+                 grid: OccupancyGrid | None = None, march_cfg: MarchConfig = MarchConfig(), chunk: int = 8192,
+                 min_accumulation: float = 0.5, use_median: bool = True) -> np.ndarray:
+    """Range image ``(channels, azimuth_samples)`` float32 of a spinning LiDAR
+    (``nsim.sensors.lidar.LidarConfig``; LiDAR frame x forward, y left, z up).
+
+    A beam returns the median (or expected) depth of its ray; ``inf`` when the ray's opacity is
+    below ``min_accumulation`` or the range is outside ``[min_range_m, max_range_m]``.
+    """
+    from nsim.sensors.lidar import beam_directions
+
+    device = model.aabb.device
+    pose = torch.as_tensor(np.asarray(lidar_to_world, dtype=np.float32), device=device)
+    d = torch.as_tensor(beam_directions(lidar).reshape(-1, 3), dtype=torch.float32, device=device) @ pose[:3, :3].T
+    origins = pose[:3, 3].expand_as(d)
+    cfg = model.sampler_cfg
+    rays = make_rays(origins, d, max(cfg.near_m, lidar.min_range_m), min(cfg.far_m, lidar.max_range_m),
+                     model.aabb if cfg.clip_rays_to_box else None)
+    out = render_rays(model, rays, method, grid, march_cfg, chunk)
+    r = out.depth_median if use_median else out.depth
+    ok = (out.accumulation >= min_accumulation) & (r >= lidar.min_range_m) & (r <= lidar.max_range_m)
+    r = torch.where(ok, r, torch.tensor(float("inf"), device=device))
+    return r.view(lidar.channels, lidar.azimuth_samples).cpu().numpy().astype(np.float32)

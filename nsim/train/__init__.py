@@ -1,0 +1,1 @@
+"""Training loops (the cores the ``train_*`` stages call)."""

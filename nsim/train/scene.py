@@ -1,0 +1,804 @@
+"""Training the scene NeRF: data, losses, schedules, checkpoints (save / resume), evaluation.
+
+Input: a directory holding ``transforms.json`` (frames with poses and intrinsics, nerfstudio
+convention; a capture artifact or a poses artifact) and the images it names; optionally
+each frame's ``depth_file_path`` (used only to *score* depth) and a sparse point cloud
+``sparse_points.ply`` (``points3D.ply`` also accepted) for optional depth supervision.
+
+Split: frame ``i`` is held out for evaluation when ``i % holdout_every == 0`` (every 8th).
+
+Determinism and resume: every random draw of step ``k`` (the rays of the batch, the
+samplers' jitter) comes from a generator seeded with ``(seed, k)``, learning rates are a
+function of ``k``, and a checkpoint holds the step, the weights, the optimiser's moments and
+the grad scaler. So a run killed at any point and resumed from its last checkpoint ends with
+the same weights, bit for bit on CPU, as a run that was never interrupted.
+
+Core API (what ``nsim/stages/train_scene.py`` calls)::
+
+    data = SceneData.load(poses_dir)                      # transforms.json + images (+ depth, points)
+    result = train_scene(data, cfg, work_dir, device=ctx.device, seed=ctx.seed,
+                         progress=ctx.show_progress)      # resumes from work_dir/last.pt
+    summary = export_scene(out.dir, result)               # the artifact's files; returns a summary
+
+``work_dir`` must survive the process (so that a killed run can resume) and be unique to the
+action key, e.g. ``store.root / "tmp" / f"train_scene.{key[:16]}.resume"``; the stage removes
+it after publishing. Later stages load the artifact with ``nsim.rendering.load_model`` and
+``OccupancyGrid.load`` and render through ``nsim.rendering.render_camera`` / ``render_lidar``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from nsim.config import config_digest, param, to_dict
+from nsim.errors import InputError
+from nsim.fields.scene_field import SceneFieldConfig
+from nsim.rendering import volume
+from nsim.rendering.model import SamplerConfig, SceneModel
+from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = 1
+POINT_FILES = ("sparse_points.ply", "points3D.ply")
+BOUNDS_MODES = ("auto", "cameras", "points", "fixed")
+
+
+# ====================================================================== configuration
+@dataclass(frozen=True)
+class OptimConfig:
+    """Steps, batch and Adam with an exponentially decaying learning rate.
+
+    Each group's learning rate goes from ``lr_*`` (after a linear warm-up) to
+    ``lr_* * lr_final_factor`` at the last step. ``num_threads``: torch CPU threads (0 leaves
+    torch's default). ``mixed_precision``: fp16 autocast with a grad scaler, CUDA only.
+    """
+
+    steps: int = param(5000, ge=1)
+    rays_per_batch: int = param(4096, ge=1)
+    lr_field: float = param(1e-2, gt=0.0)
+    lr_proposal: float = param(1e-2, gt=0.0)
+    lr_pose: float = param(1e-4, gt=0.0)
+    lr_final_factor: float = param(0.03, gt=0.0, le=1.0)
+    warmup_steps: int = param(0, ge=0)
+    adam_eps: float = param(1e-15, gt=0.0)
+    proposal_anneal_steps: int = param(1000, ge=0, help="steps over which proposal weights go from ^0.5 to ^1")
+    proposal_update_every: int = param(5, ge=1, help="train the proposal fields every N steps (after the warm-up)")
+    proposal_warmup_steps: int = param(1000, ge=0, help="steps over which the update interval grows from 1 to N")
+    pose_refinement: bool = param(False, help="optimise a per-image SE(3) correction (NeRF--)")
+    mixed_precision: bool = True
+    num_threads: int = param(2, ge=0, le=256)
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Loss weights. ``free_space_*``: the proposal sampler only ever queries the scene field near
+    surfaces, so its density elsewhere is whatever initialisation left ("fog" that a marching
+    renderer, which queries everywhere, would see). This term draws ``free_space_samples`` points
+    per ray uniformly between ``near`` and ``free_space_margin_m`` before the first bin that
+    carries weight (of the last proposal stage or of the final samples, whichever is nearer: the
+    ray is transparent there), and penalises the field's density there (mean, 1/m), so
+    that marching, the occupancy grid and the obstacle map see the same scene as the training
+    renderer. It starts after ``free_space_start`` of the steps: applied while the geometry is
+    still wrong, it would hold surfaces back from moving towards the cameras."""
+
+    interlevel_weight: float = param(1.0, ge=0.0)
+    distortion_weight: float = param(0.002, ge=0.0)
+    free_space_weight: float = param(0.0, ge=0.0, help="density penalty in front of the visible surface (see below)")
+    free_space_samples: int = param(2, ge=1, le=64, help="free-space points per ray")
+    free_space_margin_m: float = param(0.2, ge=0.0)
+    free_space_start: float = param(0.5, ge=0.0, le=1.0, help="fraction of the steps before the free-space term starts")
+    depth_weight: float = param(0.0, ge=0.0, help="sparse-point depth supervision (needs sparse_points.ply)")
+    depth_rays_per_batch: int = param(256, ge=1)
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Split and scene box. bounds: ``cameras`` (camera centres' box + margin), ``points``
+    (sparse points' 1-99 % box + margin), ``fixed`` (``aabb_*_m``), ``auto`` (points if any, else cameras)."""
+
+    holdout_every: int = param(8, ge=0, help="hold out frame i when i % holdout_every == 0 (0: none)")
+    bounds: str = param("auto", choices=BOUNDS_MODES)
+    bounds_margin_m: float = param(2.0, ge=0.0)
+    aabb_min_m: tuple[float, float, float] | None = None
+    aabb_max_m: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """Logging, checkpoints, evaluation and the baked occupancy grid / obstacle map."""
+
+    log_every: int = param(50, ge=1)
+    checkpoint_every: int = param(1000, ge=1)
+    eval_every: int = param(0, ge=0, help="steps between evaluations during training (0: only at the end)")
+    eval_views: int = param(4, ge=0, help="held-out views scored during training (0: all)")
+    final_eval_views: int = param(0, ge=0, help="held-out views scored and rendered at the end (0: all)")
+    occupancy_cell_m: float = param(0.04, gt=0.0, help="3D occupancy grid cell size")
+    occupancy_density: float = param(1.0, gt=0.0, help="density (1/m) above which a cell is occupied")
+    occupancy_samples_per_cell: int = param(2, ge=1, le=64)
+    obstacle_band_m: tuple[float, float] = (0.1, 1.0)
+    obstacle_cell_m: float = param(0.05, gt=0.0)
+    render_chunk_rays: int = param(8192, ge=1)
+
+
+@dataclass(frozen=True)
+class TrainSceneConfig:
+    field: SceneFieldConfig = SceneFieldConfig()
+    sampler: SamplerConfig = SamplerConfig()
+    optim: OptimConfig = OptimConfig()
+    loss: LossConfig = LossConfig()
+    data: DataConfig = DataConfig()
+    output: OutputConfig = OutputConfig()
+
+
+# ====================================================================== data
+@dataclass(eq=False)
+class SceneData:
+    """Frames of one capture, in memory.
+
+    images: (N, H, W, 3) uint8; cam_to_world: (N, 4, 4) float64 OpenCV axes; cameras: the
+    distinct intrinsics, camera_index: (N,) which one each frame uses (all the same size);
+    depth_paths: per frame the z-depth EXR or None; points_xyz: (P, 3) sparse points or None.
+    """
+
+    root: Path
+    names: list[str]
+    images: np.ndarray
+    cam_to_world: np.ndarray
+    cameras: list[Any]
+    camera_index: np.ndarray
+    depth_paths: list[Path | None]
+    points_xyz: np.ndarray | None = None
+    digest: str = ""
+
+    @classmethod
+    def load(cls, root: str | os.PathLike, points_file: str | None = None) -> SceneData:
+        """Read ``root/transforms.json`` and its images; InputError names the file on problems."""
+        from nsim.io.images import read_image
+        from nsim.io.transforms_json import read_transforms
+
+        root = Path(root)
+        data = read_transforms(root / "transforms.json")
+        if not data.frames:
+            raise InputError(f"{root / 'transforms.json'}: frames: no frames")
+        cameras, camera_index, images, names, depth_paths = [], [], [], [], []
+        size = (data.frames[0].camera.width, data.frames[0].camera.height)
+        h = hashlib.sha256()
+        for i, frame in enumerate(data.frames):
+            cam = frame.camera
+            if (cam.width, cam.height) != size:
+                raise InputError(f"{root / 'transforms.json'}: frames[{i}]: image size {cam.width}x{cam.height} "
+                                 f"differs from frames[0] ({size[0]}x{size[1]}); mixed sizes are not supported")
+            if cam not in cameras:
+                cameras.append(cam)
+            camera_index.append(cameras.index(cam))
+            img = read_image(root / frame.file_path)
+            if img.shape[:2] != (cam.height, cam.width):
+                raise InputError(f"{root / frame.file_path}: image is {img.shape[1]}x{img.shape[0]}, "
+                                 f"transforms.json says {cam.width}x{cam.height}")
+            images.append(img)
+            names.append(frame.file_path)
+            depth_paths.append(root / frame.depth_file_path if frame.depth_file_path else None)
+            h.update(img.tobytes())
+            h.update(np.ascontiguousarray(frame.cam_to_world).tobytes())
+            h.update(json.dumps(cam.to_dict(), sort_keys=True).encode())
+        points = None
+        candidates = [points_file] if points_file else list(POINT_FILES)
+        for name in candidates:
+            if (root / name).is_file():
+                from nsim.io.ply import read_ply
+
+                points = np.asarray(read_ply(root / name).xyz, dtype=np.float64)
+                h.update(points.tobytes())
+                break
+        return cls(root, names, np.stack(images), np.stack([f.cam_to_world for f in data.frames]), cameras,
+                   np.asarray(camera_index), depth_paths, points, h.hexdigest())
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.names)
+
+    @property
+    def size_hw(self) -> tuple[int, int]:
+        return self.images.shape[1], self.images.shape[2]
+
+    def split(self, holdout_every: int) -> tuple[np.ndarray, np.ndarray]:
+        """(train indices, held-out indices): frame i is held out when ``i % holdout_every == 0``."""
+        idx = np.arange(self.n_frames)
+        if holdout_every <= 0:
+            return idx, idx[:0]
+        held = idx % holdout_every == 0
+        if held.all():
+            raise InputError(f"{self.root}: holding out every {holdout_every}th frame leaves no training frames")
+        return idx[~held], idx[held]
+
+    def read_depth_z(self, i: int) -> np.ndarray | None:
+        """Ground-truth z-depth (H, W) of frame i, or None when the frame has none."""
+        if self.depth_paths[i] is None:
+            return None
+        from nsim.io.exr import read_depth_exr
+
+        return read_depth_exr(self.depth_paths[i])
+
+
+def scene_bounds(data: SceneData, cfg: DataConfig) -> np.ndarray:
+    """The scene box ``(2, 3)`` in world metres (see :class:`DataConfig`)."""
+    mode = cfg.bounds
+    if mode == "auto":
+        mode = "points" if data.points_xyz is not None and len(data.points_xyz) >= 8 else "cameras"
+    if mode == "fixed":
+        if cfg.aabb_min_m is None or cfg.aabb_max_m is None:
+            raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
+        lo, hi = np.asarray(cfg.aabb_min_m, float), np.asarray(cfg.aabb_max_m, float)
+    elif mode == "points":
+        if data.points_xyz is None or len(data.points_xyz) < 8:
+            raise InputError(f"{data.root}: data.bounds is 'points' but there is no sparse point cloud ({', '.join(POINT_FILES)})")
+        lo, hi = np.percentile(data.points_xyz, 1, axis=0), np.percentile(data.points_xyz, 99, axis=0)
+        centres = data.cam_to_world[:, :3, 3]
+        lo, hi = np.minimum(lo, centres.min(0)), np.maximum(hi, centres.max(0))
+        lo, hi = lo - cfg.bounds_margin_m, hi + cfg.bounds_margin_m
+    else:
+        centres = data.cam_to_world[:, :3, 3]
+        lo, hi = centres.min(0) - cfg.bounds_margin_m, centres.max(0) + cfg.bounds_margin_m
+    if not np.all(hi - lo > 1e-3):
+        raise InputError(f"data.bounds: degenerate scene box {lo.tolist()} .. {hi.tolist()}; set data.bounds_margin_m > 0")
+    return np.stack([lo, hi]).astype(np.float32)
+
+
+def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
+    digest = hashlib.sha256(f"nsim.train.scene:{purpose}:{seed}:{step}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+# ====================================================================== the trainer
+@dataclass
+class StepStats:
+    step: int
+    loss: float
+    psnr: float
+    seconds: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+class SceneTrainer:
+    """One training run's state: model, optimiser, step; ``train_step`` advances it by one.
+
+    Everything random in step ``k`` is drawn from generators seeded with ``(seed, k)``.
+    """
+
+    def __init__(self, data: SceneData, cfg: TrainSceneConfig, device: str = "cpu", seed: int = 0) -> None:
+        self.data, self.cfg, self.device, self.seed = data, cfg, torch.device(device), int(seed)
+        if cfg.optim.num_threads > 0 and self.device.type == "cpu":
+            torch.set_num_threads(cfg.optim.num_threads)
+        self.train_ids, self.eval_ids = data.split(cfg.data.holdout_every)
+        self.aabb = torch.as_tensor(scene_bounds(data, cfg.data))
+        init = torch.Generator().manual_seed(_step_seed(seed, 0, "init"))
+        from nsim.fields.hash_encoding import HashEncoding
+
+        self.backend = HashEncoding.resolve_backend(cfg.field.backend, self.device)
+        self.model = SceneModel(cfg.field, cfg.sampler, self.aabb, data.n_frames, backend=self.backend,
+                                generator=init).to(self.device)
+        mask = torch.zeros(data.n_frames, dtype=torch.bool)
+        mask[torch.as_tensor(self.train_ids)] = True
+        self.model.train_mask.copy_(mask)
+        self.pose_refine = PoseRefinement(data.n_frames).to(self.device) if cfg.optim.pose_refinement else None
+        # data on the device: uint8 images, per-camera pixel directions, poses
+        self.images = torch.as_tensor(data.images).to(self.device)
+        self.dirs_cam = torch.stack([camera_dirs(c) for c in data.cameras]).to(self.device)  # (C, H, W, 3)
+        self.camera_index = torch.as_tensor(data.camera_index, dtype=torch.long, device=self.device)
+        self.cam_to_world = torch.as_tensor(data.cam_to_world, dtype=torch.float32, device=self.device)
+        self.train_index = torch.as_tensor(self.train_ids, dtype=torch.long, device=self.device)
+        self.depth_points = self._project_points() if cfg.loss.depth_weight > 0 else None
+        groups = [
+            {"params": list(self.model.field.parameters()), "lr": cfg.optim.lr_field, "name": "field"},
+            {"params": list(self.model.proposals.parameters()), "lr": cfg.optim.lr_proposal, "name": "proposal"},
+        ]
+        if self.pose_refine is not None:
+            groups.append({"params": list(self.pose_refine.parameters()), "lr": cfg.optim.lr_pose, "name": "pose"})
+        self.base_lr = [g["lr"] for g in groups]
+        # fused: one kernel over all tensors (4x faster than the default loop on CPU), deterministic
+        self.optimizer = torch.optim.Adam(groups, eps=cfg.optim.adam_eps, fused=self.device.type in ("cpu", "cuda"))
+        self.amp = bool(cfg.optim.mixed_precision and self.device.type == "cuda")
+        self.scaler = torch.amp.GradScaler("cuda", enabled=self.amp)
+        self.step = 0
+        self.train_seconds = 0.0
+        self.history: list[dict[str, float]] = []
+
+    # ------------------------------------------------------------------ schedules
+    def lr_scale(self, step: int) -> float:
+        o = self.cfg.optim
+        decay = o.lr_final_factor ** min(1.0, step / max(1, o.steps))
+        warm = min(1.0, (step + 1) / o.warmup_steps) if o.warmup_steps > 0 else 1.0
+        return decay * warm
+
+    def anneal(self, step: int) -> float:
+        n = self.cfg.optim.proposal_anneal_steps
+        if n <= 0:
+            return 1.0
+        x = min(1.0, step / n)
+        bias = 10.0  # mip-NeRF 360 / nerfstudio's annealing curve, from 0.5 ... 1
+        return 0.5 + 0.5 * (bias * x / ((bias - 1.0) * x + 1.0))
+
+    def proposal_update(self, step: int) -> bool:
+        """Whether step ``step`` trains the proposal fields (nerfstudio's schedule: every step at
+        first, then every ``proposal_update_every`` steps by the end of the warm-up)."""
+        o = self.cfg.optim
+        every = o.proposal_update_every
+        if o.proposal_warmup_steps > 0:
+            every = int(np.clip(np.interp(step, [0, o.proposal_warmup_steps], [0, every]), 1, every))
+        return step % every == 0
+
+    # ------------------------------------------------------------------ batches
+    def _project_points(self) -> Tensor | None:
+        """For each training image, the sparse points in front of it: rows (image, u, v, range_m)."""
+        pts = self.data.points_xyz
+        if pts is None or len(pts) == 0:
+            raise InputError(f"{self.data.root}: loss.depth_weight > 0 needs a sparse point cloud ({', '.join(POINT_FILES)})")
+        rows = []
+        for i in self.train_ids:
+            c2w = self.data.cam_to_world[i]
+            cam = self.data.cameras[self.data.camera_index[i]]
+            p_cam = (pts - c2w[:3, 3]) @ c2w[:3, :3]
+            uv, valid = cam.project(p_cam)
+            rng = np.linalg.norm(p_cam, axis=-1)
+            valid &= rng > self.cfg.sampler.near_m
+            if valid.any():
+                rows.append(np.column_stack([np.full(valid.sum(), i), uv[valid], rng[valid]]))
+        if not rows:
+            raise InputError(f"{self.data.root}: no sparse point projects into any training image")
+        return torch.as_tensor(np.concatenate(rows), dtype=torch.float32)
+
+    def batch(self, step: int) -> tuple[Rays, Tensor, torch.Generator]:
+        """The rays and target colours of ``step``: a pure function of ``(seed, step)``."""
+        g = torch.Generator().manual_seed(_step_seed(self.seed, step))
+        b = self.cfg.optim.rays_per_batch
+        h, w = self.data.size_hw
+        pick = torch.randint(0, len(self.train_ids), (b,), generator=g).to(self.device)
+        pix = torch.randint(0, h * w, (b,), generator=g).to(self.device)
+        img = self.train_index[pick]
+        v, u = pix // w, pix % w
+        target = self.images[img, v, u].float() / 255.0
+        dirs_cam = self.dirs_cam[self.camera_index[img], v, u]
+        rays = self._rays(dirs_cam, img)
+        return rays, target, g
+
+    def _rays(self, dirs_cam: Tensor, img: Tensor) -> Rays:
+        c2w = self.cam_to_world[img]
+        if self.pose_refine is not None:
+            c2w = self.pose_refine(c2w, img)
+        origins, dirs = rays_from_pixels(dirs_cam, c2w)
+        s = self.cfg.sampler
+        return make_rays(origins, dirs, s.near_m, s.far_m, self.aabb.to(self.device) if s.clip_rays_to_box else None,
+                         image_index=img)
+
+    def depth_batch(self, step: int) -> tuple[Rays, Tensor]:
+        g = torch.Generator().manual_seed(_step_seed(self.seed, step, "depth"))
+        rows = self.depth_points[torch.randint(0, len(self.depth_points), (self.cfg.loss.depth_rays_per_batch,), generator=g)]
+        img = rows[:, 0].long()
+        dirs = []
+        for k, i in enumerate(img.tolist()):
+            cam = self.data.cameras[self.data.camera_index[i]]
+            dirs.append(np.asarray(cam.unproject(rows[k, 1:3].double().numpy()), dtype=np.float32))
+        dirs_cam = torch.as_tensor(np.stack(dirs)).to(self.device)
+        return self._rays(dirs_cam, img.to(self.device)), rows[:, 3].to(self.device)
+
+    # ------------------------------------------------------------------ one step
+    def train_step(self) -> StepStats:
+        t0 = time.perf_counter()
+        step = self.step
+        cfg = self.cfg
+        scale = self.lr_scale(step)
+        for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
+            group["lr"] = base * scale
+        self.model.train()
+        rays, target, g = self.batch(step)
+        anneal = self.anneal(step)
+        update_proposals = self.proposal_update(step)
+        with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
+            out = self.model.render_proposal(rays, generator=g, anneal=anneal, proposal_grad=update_proposals)
+            mse = torch.mean((out.rgb.float() - target) ** 2)
+            loss = mse
+            extra = {}
+            if cfg.loss.interlevel_weight > 0 and update_proposals:
+                inter = volume.interlevel_loss(out.weights, out.bins, out.proposal_weights, out.proposal_bins)
+                loss = loss + cfg.loss.interlevel_weight * inter
+                extra["interlevel"] = float(inter.detach())
+            if cfg.loss.distortion_weight > 0:
+                dist = volume.distortion_loss(out.weights, out.bins)
+                loss = loss + cfg.loss.distortion_weight * dist
+                extra["distortion"] = float(dist.detach())
+            if cfg.loss.free_space_weight > 0 and step >= cfg.loss.free_space_start * cfg.optim.steps:
+                free = self.free_space_loss(rays, out, g)
+                loss = loss + cfg.loss.free_space_weight * free
+                extra["free_space"] = float(free.detach())
+            if self.depth_points is not None:
+                d_rays, d_target = self.depth_batch(step)
+                g_d = torch.Generator().manual_seed(_step_seed(self.seed, step, "depth-jitter"))
+                d_out = self.model.render_proposal(d_rays, generator=g_d, anneal=anneal, proposal_grad=False)
+                d_loss = torch.mean(torch.abs(d_out.depth - d_target) / d_target)
+                loss = loss + cfg.loss.depth_weight * d_loss
+                extra["depth"] = float(d_loss.detach())
+        self.optimizer.zero_grad(set_to_none=True)
+        self.scaler.scale(loss).backward()
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+        self.step += 1
+        dt = time.perf_counter() - t0
+        self.train_seconds += dt
+        mse_f = float(mse.detach())
+        return StepStats(step=self.step, loss=float(loss.detach()), psnr=-10.0 * math.log10(max(mse_f, 1e-12)), seconds=dt,
+                         extra=extra)
+
+    def _first_weighted_t(self, rays: Rays, bins: Tensor, weights: Tensor) -> Tensor:
+        """Start (metres) of the first bin where the ray's cumulative weight reaches 1e-3: ``(R,)``."""
+        from nsim.rendering.samplers import spacing_to_t
+
+        s = self.cfg.sampler
+        t = spacing_to_t(bins.detach(), rays.near, rays.far, s.spacing, s.lindisp_break_m)
+        cum = torch.cumsum(weights.detach(), dim=-1)
+        first = (cum < 1e-3).sum(-1, keepdim=True).clamp(max=cum.shape[-1] - 1)
+        return torch.gather(t[:, :-1], -1, first)[:, 0]
+
+    def free_space_loss(self, rays: Rays, out, generator: torch.Generator) -> Tensor:
+        """Mean scene-field density at random points in front of each ray's first weighted bin
+        (of the last proposal stage or of the final samples, whichever comes first)."""
+        lc = self.cfg.loss
+        t_free = torch.minimum(self._first_weighted_t(rays, out.proposal_bins[-1], out.proposal_weights[-1]),
+                               self._first_weighted_t(rays, out.bins, out.weights)) - lc.free_space_margin_m
+        span = (t_free - rays.near).clamp(min=0.0)
+        n = len(rays)
+        u = torch.rand((n, lc.free_space_samples), generator=generator).to(span.device)
+        ts = rays.near[:, None] + u * span[:, None]
+        x = rays.origins[:, None, :] + rays.dirs[:, None, :] * ts[..., None]
+        sigma, _ = self.model.field.density(x.reshape(-1, 3))
+        valid = (span > 1e-3).float()[:, None].expand(-1, lc.free_space_samples)
+        return (sigma.view(n, -1) * valid).sum() / valid.sum().clamp(min=1.0)
+
+    # ------------------------------------------------------------------ checkpoints
+    def meta(self) -> dict[str, Any]:
+        return {"config": config_digest(self.cfg), "data": self.data.digest, "seed": self.seed,
+                "backend": self.backend, "device": self.device.type}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "meta": self.meta(),
+            "step": self.step,
+            "train_seconds": self.train_seconds,
+            "model": self.model.state_dict(),
+            "pose_refine": None if self.pose_refine is None else self.pose_refine.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scaler": self.scaler.state_dict(),
+            "history": self.history,
+            # all randomness is a function of (seed, step); the global generators are kept for completeness
+            "torch_rng": torch.get_rng_state(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise InputError(f"checkpoint format {state.get('format')} is not {CHECKPOINT_FORMAT}")
+        if state["meta"] != self.meta():
+            raise InputError(f"checkpoint was made by another run ({state['meta']} != {self.meta()})")
+        self.model.load_state_dict(state["model"])
+        if self.pose_refine is not None:
+            self.pose_refine.load_state_dict(state["pose_refine"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scaler.load_state_dict(state["scaler"])
+        self.step = int(state["step"])
+        self.train_seconds = float(state["train_seconds"])
+        self.history = list(state["history"])
+        torch.set_rng_state(state["torch_rng"])
+
+    def save_checkpoint(self, path: Path) -> None:
+        """Atomically write the full training state to ``path``."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            torch.save(self.state_dict(), f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    def load_checkpoint(self, path: Path) -> None:
+        self.load_state_dict(torch.load(path, map_location=self.device, weights_only=False))
+
+    # ------------------------------------------------------------------ rendering and evaluation
+    @torch.no_grad()
+    def render_view(self, i: int, chunk: int | None = None) -> dict[str, np.ndarray]:
+        """Render frame ``i`` (its recorded pose, mean appearance): rgb (H, W, 3), depth_z and
+        depth_median_z (H, W) z-depth in metres, accumulation (H, W)."""
+        self.model.eval()
+        chunk = chunk or self.cfg.output.render_chunk_rays
+        h, w = self.data.size_hw
+        dirs_cam = self.dirs_cam[self.camera_index[i]].reshape(-1, 3)
+        c2w = self.cam_to_world[i].expand(h * w, 4, 4)
+        origins, dirs = rays_from_pixels(dirs_cam, c2w)
+        s = self.cfg.sampler
+        rays = make_rays(origins, dirs, s.near_m, s.far_m, self.aabb.to(self.device) if s.clip_rays_to_box else None)
+        outs = [self.model.render_proposal(rays[k : k + chunk]) for k in range(0, h * w, chunk)]
+        z = dirs_cam[:, 2]
+        cat = {name: torch.cat([getattr(o, name) for o in outs]) for name in ("rgb", "depth", "depth_median", "accumulation")}
+        return {
+            "rgb": cat["rgb"].clamp(0, 1).view(h, w, 3).cpu().numpy(),
+            "depth_z": (cat["depth"] * z).view(h, w).cpu().numpy(),
+            "depth_median_z": (cat["depth_median"] * z).view(h, w).cpu().numpy(),
+            "accumulation": cat["accumulation"].view(h, w).cpu().numpy(),
+        }
+
+    def evaluate(self, views: list[int] | None = None, keep_images: bool = False) -> dict[str, Any]:
+        """PSNR / SSIM / depth AbsRel on held-out frames (all, or ``views``)."""
+        views = list(self.eval_ids) if views is None else views
+        per_view = []
+        images = {}
+        for i in views:
+            pred = self.render_view(i)
+            gt = self.data.images[i].astype(np.float32) / 255.0
+            row = {"frame": int(i), "name": self.data.names[i], **image_metrics(pred["rgb"], gt)}
+            gt_depth = self.data.read_depth_z(i)
+            if gt_depth is not None:
+                row["abs_rel_expected"] = abs_rel(pred["depth_z"], gt_depth)
+                row["abs_rel_median"] = abs_rel(pred["depth_median_z"], gt_depth)
+            per_view.append(row)
+            if keep_images:
+                images[int(i)] = pred
+        summary = {k: float(np.mean([r[k] for r in per_view])) for k in per_view[0] if k not in ("frame", "name")} if per_view else {}
+        return {"views": per_view, "mean": summary, "images": images}
+
+
+# ====================================================================== metrics (image and depth)
+def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    mse = float(np.mean((np.asarray(pred, np.float64) - np.asarray(gt, np.float64)) ** 2))
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+
+
+def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
+    """PSNR (dB) and SSIM (scikit-image, Gaussian 7x7-ish window as in Wang et al.) of (H, W, 3) in [0, 1]."""
+    from skimage.metrics import structural_similarity
+
+    ssim = structural_similarity(gt, pred, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5,
+                                 use_sample_covariance=False)
+    return {"psnr": psnr(pred, gt), "ssim": float(ssim)}
+
+
+def abs_rel(pred_depth: np.ndarray, gt_depth: np.ndarray) -> float:
+    """Mean ``|pred - gt| / gt`` over pixels with finite, positive ground truth."""
+    valid = np.isfinite(gt_depth) & (gt_depth > 0) & np.isfinite(pred_depth)
+    return float(np.mean(np.abs(pred_depth[valid] - gt_depth[valid]) / gt_depth[valid]))
+
+
+def constant_color_psnr(data: SceneData, holdout_every: int) -> float:
+    """PSNR of the training images' mean colour on the held-out frames (the trivial baseline)."""
+    train, held = data.split(holdout_every)
+    mean = data.images[train].reshape(-1, 3).astype(np.float64).mean(0) / 255.0
+    return float(np.mean([psnr(np.broadcast_to(mean, data.images[i].shape), data.images[i] / 255.0) for i in held]))
+
+
+# ====================================================================== the loop
+@dataclass
+class TrainResult:
+    trainer: SceneTrainer
+    resumed_from: int | None
+    evaluation: dict[str, Any] | None = None
+
+    @property
+    def model(self) -> SceneModel:
+        return self.trainer.model
+
+
+CHECKPOINT_NAME = "last.pt"
+
+
+def train_scene(
+    data: SceneData,
+    cfg: TrainSceneConfig,
+    work_dir: str | os.PathLike,
+    device: str = "cpu",
+    seed: int = 0,
+    progress: bool = False,
+    stop_after: int | None = None,
+    on_log: Callable[[SceneTrainer, StepStats], None] | None = None,
+) -> TrainResult:
+    """Train (or resume) a scene model; checkpoints go to ``work_dir/last.pt``.
+
+    If ``work_dir/last.pt`` exists and belongs to this run (same config, data, seed, backend and
+    device), training continues from it; a checkpoint is written every ``output.checkpoint_every``
+    steps and at the end. ``stop_after``: return after that many total steps *without* writing a
+    checkpoint, as if the process had been killed then (tests). ``on_log`` is called every
+    ``output.log_every`` steps (after evaluation, if one is due).
+    """
+    from nsim.progress import progress_bar
+
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    trainer = SceneTrainer(data, cfg, device, seed)
+    ckpt = work_dir / CHECKPOINT_NAME
+    resumed = None
+    if ckpt.is_file():
+        try:
+            trainer.load_checkpoint(ckpt)
+            resumed = trainer.step
+            log.info("resuming from %s at step %d", ckpt, trainer.step)
+        except (InputError, RuntimeError, KeyError) as exc:
+            log.warning("ignoring checkpoint %s: %s", ckpt, exc)
+            trainer = SceneTrainer(data, cfg, device, seed)
+    out = cfg.output
+    end = cfg.optim.steps if stop_after is None else min(cfg.optim.steps, stop_after)
+    with progress_bar(cfg.optim.steps, "training scene", progress) as bar:
+        bar.advance(trainer.step)
+        while trainer.step < end:
+            stats = trainer.train_step()
+            step = trainer.step
+            if step % out.log_every == 0 or step == cfg.optim.steps:
+                row = {"step": step, "train_seconds": trainer.train_seconds, "loss": stats.loss, "psnr_train": stats.psnr,
+                       **stats.extra}
+                if out.eval_every and (step % out.eval_every == 0 or step == cfg.optim.steps):
+                    views = _spread(list(trainer.eval_ids), out.eval_views)
+                    if views:
+                        ev = trainer.evaluate(views)["mean"]
+                        row.update({f"eval_{k}": v for k, v in ev.items()})
+                trainer.history.append(row)
+                bar.advance(0, loss=f"{stats.loss:.4f}", psnr=f"{stats.psnr:.2f}")
+                log.info("step %d loss %.5f psnr %.2f (%.1f s)", step, stats.loss, stats.psnr, trainer.train_seconds)
+                if on_log is not None:
+                    on_log(trainer, stats)
+            if step % out.checkpoint_every == 0 or step == cfg.optim.steps:
+                t0 = time.perf_counter()
+                trainer.save_checkpoint(ckpt)
+                trainer.train_seconds += time.perf_counter() - t0
+            bar.advance(1)
+    return TrainResult(trainer, resumed)
+
+
+def _spread(items: list[int], n: int) -> list[int]:
+    """``n`` items spread evenly over ``items`` (all when n is 0 or too large)."""
+    if n <= 0 or n >= len(items):
+        return items
+    return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
+
+
+def bake_occupancy(trainer: SceneTrainer):
+    """The 3D occupancy grid of the trained scene field (``output.occupancy_*``)."""
+    from nsim.rendering.occupancy import OccupancyGrid
+
+    out = trainer.cfg.output
+    model = trainer.model.eval()
+    g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "occupancy"))
+    return OccupancyGrid.bake(lambda x: model.field.density(x)[0], trainer.aabb, out.occupancy_cell_m,
+                              out.occupancy_density, out.occupancy_samples_per_cell, dilate=1, generator=g,
+                              device=trainer.device)
+
+
+def bake_obstacles(trainer: SceneTrainer):
+    """The 2D obstacle map at ``output.obstacle_band_m`` (world z, metres)."""
+    from nsim.rendering.occupancy import obstacle_map
+
+    out = trainer.cfg.output
+    model = trainer.model.eval()
+    g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "obstacles"))
+    return obstacle_map(lambda x: model.field.density(x)[0], trainer.aabb, out.obstacle_band_m, out.obstacle_cell_m,
+                        out.occupancy_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device)
+
+
+def plot_curves(path: Path, history: list[dict[str, float]]) -> None:
+    """Training loss and PSNR (train batches; held-out views when evaluated) against steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), dpi=90)
+    if history:
+        steps = [h["step"] for h in history]
+        axes[0].semilogy(steps, [h["loss"] for h in history], label="loss")
+        for key in ("interlevel", "distortion", "free_space"):
+            if all(key in h for h in history):
+                axes[0].semilogy(steps, [h[key] for h in history], label=key, alpha=0.7)
+        axes[0].set_xlabel("step")
+        axes[0].legend()
+        axes[1].plot(steps, [h["psnr_train"] for h in history], label="train batch PSNR")
+        ev = [(h["step"], h["eval_psnr"]) for h in history if "eval_psnr" in h]
+        if ev:
+            axes[1].plot(*zip(*ev, strict=True), "o-", label="held-out PSNR")
+        axes[1].set_xlabel("step")
+        axes[1].set_ylabel("dB")
+        axes[1].legend()
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+
+
+def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, Any]:
+    """Write everything the stage publishes into ``out_dir``; returns the summary.
+
+    Files: ``model.pt`` + ``scene.json`` (weights and what rebuilds the model: configs, scene
+    box, hash backend, training images), ``bounds.json``, ``occupancy_grid.npy`` + ``.json`` (3D grid),
+    ``obstacles.png`` + ``obstacles.json`` (2D map and polygons at the height band),
+    ``curves.png`` + ``history.json`` (against steps), ``eval/<frame>.png`` (render | ground
+    truth) and ``eval.json`` (per-view PSNR / SSIM / depth AbsRel). No file holds a timing, so a
+    rerun on CPU writes the same bytes (the artifact id repeats); the training seconds are in
+    ``result.trainer.train_seconds`` for the caller to report.
+    """
+    from nsim.io.images import to_uint8, write_image
+    from nsim.rendering.model import save_model
+
+    trainer = result.trainer
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cfg = trainer.cfg
+    data = trainer.data
+    save_model(out_dir, trainer.model, extra={
+        "images": data.names,
+        "train_images": [int(i) for i in trainer.train_ids],
+        "eval_images": [int(i) for i in trainer.eval_ids],
+        "steps": trainer.step,
+    })
+    aabb = trainer.aabb.tolist()
+    (out_dir / "bounds.json").write_text(json.dumps({"units": "m", "frame": "world, z up", "aabb_min_m": aabb[0],
+                                                     "aabb_max_m": aabb[1], "near_m": cfg.sampler.near_m,
+                                                     "far_m": cfg.sampler.far_m}, indent=1) + "\n")
+    grid = bake_occupancy(trainer)
+    grid.save(out_dir / "occupancy_grid.npy")
+    obstacles = bake_obstacles(trainer)
+    obstacles.to_png(out_dir / "obstacles.png")
+    (out_dir / "obstacles.json").write_text(json.dumps({
+        "units": "m",
+        "frame": "world, z up; polygons in the xy plane (counter-clockwise)",
+        "height_band_m": list(obstacles.band_m),
+        "cell_m": obstacles.cell_m,
+        "polygons": [np.round(p, 6).tolist() for p in obstacles.polygons()],
+    }, indent=1) + "\n")
+    history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
+    plot_curves(out_dir / "curves.png", history)
+    (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
+    views = _spread(list(trainer.eval_ids), cfg.output.final_eval_views)
+    summary: dict[str, Any] = {"steps": trainer.step, "occupied_fraction": grid.occupied_fraction}
+    if views:
+        ev = trainer.evaluate(views, keep_images=True)
+        (out_dir / "eval").mkdir(exist_ok=True)
+        for i, pred in ev["images"].items():
+            gt = data.images[i]
+            write_image(out_dir / "eval" / f"frame_{i:05d}.png", np.concatenate([to_uint8(pred["rgb"]), gt], axis=1))
+        (out_dir / "eval.json").write_text(json.dumps({"views": ev["views"], "mean": ev["mean"],
+                                                       "constant_color_psnr": constant_color_psnr(data, cfg.data.holdout_every)},
+                                                      indent=1) + "\n")
+        summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
+    result.evaluation = summary
+    return summary
+
+
+def config_json(cfg: TrainSceneConfig) -> str:
+    return json.dumps(to_dict(cfg), indent=1, sort_keys=True)
+
+
+__all__ = [
+    "DataConfig",
+    "LossConfig",
+    "OptimConfig",
+    "OutputConfig",
+    "SceneData",
+    "SceneTrainer",
+    "TrainResult",
+    "TrainSceneConfig",
+    "abs_rel",
+    "bake_obstacles",
+    "bake_occupancy",
+    "export_scene",
+    "constant_color_psnr",
+    "image_metrics",
+    "scene_bounds",
+    "train_scene",
+]

@@ -1,0 +1,232 @@
+"""Scene training: data and split, determinism, checkpoint resume (bit-identical), export, the tiny preset."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from nsim.config import from_dict, load_config
+from nsim.errors import InputError
+from nsim.train.scene import (
+    SceneData,
+    SceneTrainer,
+    TrainSceneConfig,
+    constant_color_psnr,
+    export_scene,
+    scene_bounds,
+    train_scene,
+)
+
+MICRO = {
+    "field": {"hash_levels": 4, "hash_log2_table_size": 10, "hash_max_resolution": 128, "hidden_dim": 16,
+              "color_hidden_dim": 16, "color_hidden_layers": 1, "appearance_dim": 4, "sh_degree": 2, "backend": "torch"},
+    "sampler": {"proposal_samples": [16, 8], "final_samples": 8, "proposal_hash_levels": 3,
+                "proposal_hash_log2_table_size": 10, "proposal_hash_max_resolutions": [32, 64], "proposal_hidden_dim": 8},
+    "optim": {"steps": 8, "rays_per_batch": 256, "num_threads": 1, "proposal_warmup_steps": 4, "proposal_update_every": 2},
+    "output": {"log_every": 2, "checkpoint_every": 3, "eval_views": 1, "final_eval_views": 2,
+               "occupancy_cell_m": 0.25, "obstacle_cell_m": 0.2},
+}
+
+
+def micro_cfg(**sections) -> TrainSceneConfig:
+    data = {k: dict(v) for k, v in MICRO.items()}
+    for k, v in sections.items():
+        data.setdefault(k, {}).update(v)
+    return from_dict(TrainSceneConfig, data)
+
+
+def test_data_and_split(tiny_data):
+    assert tiny_data.images.shape == (32, 48, 64, 3) and tiny_data.images.dtype == np.uint8
+    train, held = tiny_data.split(8)
+    assert held.tolist() == [0, 8, 16, 24] and len(train) == 28 and not set(train) & set(held)
+    assert tiny_data.read_depth_z(3).shape == (48, 64)
+    box = scene_bounds(tiny_data, micro_cfg().data)
+    centres = tiny_data.cam_to_world[:, :3, 3]
+    assert (box[0] < centres.min(0)).all() and (box[1] > centres.max(0)).all()
+
+
+def test_missing_transforms_is_input_error(tmp_path):
+    with pytest.raises(InputError, match="transforms.json"):
+        SceneData.load(tmp_path)
+
+
+def test_batch_is_a_pure_function_of_seed_and_step(tiny_data):
+    a = SceneTrainer(tiny_data, micro_cfg(), seed=3)
+    b = SceneTrainer(tiny_data, micro_cfg(), seed=3)
+    ra, ta, _ = a.batch(17)
+    rb, tb, _ = b.batch(17)
+    assert torch.equal(ra.origins, rb.origins) and torch.equal(ra.dirs, rb.dirs) and torch.equal(ta, tb)
+    rc, _, _ = a.batch(18)
+    assert not torch.equal(ra.dirs, rc.dirs)
+    assert ra.image_index is not None and set(ra.image_index.tolist()) <= set(a.train_ids.tolist())
+
+
+def _state(trainer):
+    return {k: v.clone() for k, v in trainer.model.state_dict().items()}
+
+
+def test_resume_is_bit_identical(tiny_data, tmp_path):
+    cfg = micro_cfg()
+    whole = train_scene(tiny_data, cfg, tmp_path / "whole", seed=5).trainer
+    # "killed" after step 5: the checkpoint of step 3 is the last one on disk; resuming redoes steps 4, 5
+    part = train_scene(tiny_data, cfg, tmp_path / "part", seed=5, stop_after=5).trainer
+    assert part.step == 5
+    resumed = train_scene(tiny_data, cfg, tmp_path / "part", seed=5)
+    assert resumed.resumed_from == 3 and resumed.trainer.step == cfg.optim.steps
+    for (k, va), (_, vb) in zip(_state(whole).items(), _state(resumed.trainer).items(), strict=True):
+        assert torch.equal(va, vb), k
+    sa, sb = whole.optimizer.state_dict()["state"], resumed.trainer.optimizer.state_dict()["state"]
+    for key in sa:
+        assert torch.equal(sa[key]["exp_avg"], sb[key]["exp_avg"]) and torch.equal(sa[key]["exp_avg_sq"], sb[key]["exp_avg_sq"])
+    assert [h["loss"] for h in whole.history] == [h["loss"] for h in resumed.trainer.history]
+
+
+def test_resume_from_an_older_checkpoint_in_process(tiny_data, tmp_path):
+    """Train N steps, save, rebuild a fresh trainer from the checkpoint, continue: same as uninterrupted."""
+    cfg = micro_cfg()
+    ref = SceneTrainer(tiny_data, cfg, seed=1)
+    for _ in range(5):
+        ref.train_step()
+    a = SceneTrainer(tiny_data, cfg, seed=1)
+    for _ in range(2):
+        a.train_step()
+    a.save_checkpoint(tmp_path / "c.pt")
+    del a
+    b = SceneTrainer(tiny_data, cfg, seed=1)
+    b.load_checkpoint(tmp_path / "c.pt")
+    for _ in range(3):
+        b.train_step()
+    for (k, va), (_, vb) in zip(_state(ref).items(), _state(b).items(), strict=True):
+        assert torch.equal(va, vb), k
+
+
+def test_checkpoint_of_another_run_is_not_resumed(tiny_data, tmp_path):
+    train_scene(tiny_data, micro_cfg(optim={"steps": 3}), tmp_path, seed=0)
+    other = train_scene(tiny_data, micro_cfg(optim={"steps": 3}), tmp_path, seed=1)
+    assert other.resumed_from is None
+    with pytest.raises(InputError):
+        SceneTrainer(tiny_data, micro_cfg(optim={"steps": 3}), seed=2).load_checkpoint(tmp_path / "last.pt")
+
+
+def test_pose_refinement_and_depth_supervision_train(tiny_data, tiny_capture_dir, tmp_path):
+    # sparse points from the ground-truth depth of a few frames stand in for SfM points
+    from nsim.io.ply import write_ply
+
+    pts = []
+    for i in (1, 5, 9):
+        depth = tiny_data.read_depth_z(i)
+        cam = tiny_data.cameras[tiny_data.camera_index[i]]
+        dirs = cam.pixel_dirs_cam()
+        p_cam = dirs / dirs[..., 2:3] * depth[..., None]
+        c2w = tiny_data.cam_to_world[i]
+        pts.append((p_cam.reshape(-1, 3) @ c2w[:3, :3].T + c2w[:3, 3])[::37])
+    root = tmp_path / "capture"
+    shutil.copytree(tiny_capture_dir, root)
+    write_ply(root / "sparse_points.ply", np.concatenate(pts))
+    data = SceneData.load(root)
+    assert data.points_xyz is not None and data.digest != SceneData.load(tiny_capture_dir).digest
+    cfg = micro_cfg(optim={"steps": 4, "pose_refinement": True}, loss={"depth_weight": 0.1, "depth_rays_per_batch": 32})
+    tr = SceneTrainer(data, cfg)
+    stats = [tr.train_step() for _ in range(4)]
+    assert all(np.isfinite(s.loss) for s in stats) and "depth" in stats[-1].extra
+    assert tr.pose_refine.twists.abs().sum() > 0  # the poses moved
+    assert scene_bounds(data, cfg.data).shape == (2, 3)
+
+
+def test_export_and_reload(tiny_data, tmp_path):
+    from nsim.rendering.model import load_model
+    from nsim.rendering.occupancy import OccupancyGrid
+    from nsim.rendering.renderer import render_camera, render_lidar
+    from nsim.sensors.lidar import LidarConfig
+
+    cfg = micro_cfg(optim={"steps": 4})
+    result = train_scene(tiny_data, cfg, tmp_path / "work", seed=0)
+    out = tmp_path / "out"
+    summary = export_scene(out, result)
+    for name in ("model.pt", "scene.json", "bounds.json", "occupancy_grid.npy", "occupancy_grid.json", "obstacles.png", "obstacles.json",
+                 "curves.png", "history.json", "eval.json", "eval/frame_00000.png"):
+        assert (out / name).is_file(), name
+    assert summary["steps"] == 4 and "eval_psnr" in summary
+    ev = json.loads((out / "eval.json").read_text())
+    assert len(ev["views"]) == 2 and "abs_rel_median" in ev["views"][0]
+    model = load_model(out)
+    for (k, va), (_, vb) in zip(result.model.state_dict().items(), model.state_dict().items(), strict=True):
+        assert torch.equal(va.cpu(), vb), k
+    grid = OccupancyGrid.load(out / "occupancy_grid.npy")
+    cam = tiny_data.cameras[0]
+    view = render_camera(model, cam, tiny_data.cam_to_world[3], method="march", grid=grid, return_samples=True)
+    assert view.rgb.shape == (48, 64, 3) and view.depth_z.shape == (48, 64) and view.samples is not None
+    prop = render_camera(model, cam, tiny_data.cam_to_world[3], method="proposal")
+    assert np.isfinite(prop.rgb).all()
+    lidar = LidarConfig(channels=4, azimuth_samples=32, vertical_fov_deg=(-10.0, 10.0))
+    pose = np.eye(4)
+    pose[:3, 3] = tiny_data.cam_to_world[3, :3, 3]
+    ranges = render_lidar(model, pose, lidar, grid=grid)
+    assert ranges.shape == (4, 32) and ranges.dtype == np.float32
+
+
+@pytest.mark.slow
+def test_tiny_preset_beats_constant_color(tiny_data, tmp_path):
+    cfg = load_config(TrainSceneConfig, stage="train_scene", preset="tiny")
+    result = train_scene(tiny_data, cfg, tmp_path, seed=0)
+    ev = result.trainer.evaluate()
+    baseline = constant_color_psnr(tiny_data, cfg.data.holdout_every)
+    assert ev["mean"]["psnr"] >= baseline + 5.0, (ev["mean"], baseline)
+
+
+@pytest.mark.slow
+def test_kill_9_then_resume_is_bit_identical(tiny_capture_dir, tiny_data, tmp_path):
+    """A training process killed with SIGKILL resumes from its last checkpoint to the same weights."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    steps = 30
+    cfg = micro_cfg(optim={"steps": steps}, output={"checkpoint_every": 2, "log_every": 2})
+    cfg_json = json.dumps({k: dict(v) for k, v in MICRO.items()} | {
+        "optim": {**MICRO["optim"], "steps": steps}, "output": {**MICRO["output"], "checkpoint_every": 2, "log_every": 2}})
+    script = (
+        "import json, sys\n"
+        "from nsim.config import from_dict\n"
+        "from nsim.train.scene import SceneData, TrainSceneConfig, train_scene\n"
+        f"cfg = from_dict(TrainSceneConfig, json.loads({cfg_json!r}))\n"
+        f"train_scene(SceneData.load({str(tiny_capture_dir)!r}), cfg, {str(tmp_path / 'work')!r}, seed=9)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=str(tmp_path), env={**os.environ, "PYTHONPATH": os.getcwd()})
+    ckpt = tmp_path / "work" / "last.pt"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if ckpt.is_file() and torch.load(ckpt, weights_only=False)["step"] >= 6:
+            break
+        time.sleep(0.05)
+    killed_at = torch.load(ckpt, weights_only=False)["step"] if ckpt.is_file() else None
+    if proc.poll() is None:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        assert proc.returncode == -signal.SIGKILL
+    assert killed_at is not None and killed_at < steps, "the process finished before it could be killed"
+    resumed = train_scene(tiny_data, cfg, tmp_path / "work", seed=9)
+    assert resumed.resumed_from is not None and resumed.resumed_from >= 6
+    whole = train_scene(tiny_data, cfg, tmp_path / "whole", seed=9)
+    for (k, va), (_, vb) in zip(_state(whole.trainer).items(), _state(resumed.trainer).items(), strict=True):
+        assert torch.equal(va, vb), k
+
+
+def test_export_repeats_byte_for_byte(tiny_data, tmp_path):
+    """Same data, config and seed on CPU: the same files (so the stage's artifact id repeats)."""
+    import hashlib
+
+    cfg = micro_cfg(optim={"steps": 3}, output={"final_eval_views": 1})
+    digests = []
+    for run in ("a", "b"):
+        result = train_scene(tiny_data, cfg, tmp_path / f"work_{run}", seed=2)
+        export_scene(tmp_path / run, result)
+        files = sorted(p for p in (tmp_path / run).rglob("*") if p.is_file())
+        digests.append({p.relative_to(tmp_path / run).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in files})
+    assert digests[0] == digests[1]
