@@ -2,39 +2,110 @@
 
 ``image``: PSNR, SSIM; ``lpips``: LPIPS (AlexNet / VGG, weights from ``scripts/fetch_lpips_weights.py``);
 ``depth``: AbsRel, SqRel, RMSE, logRMSE, delta thresholds; ``lidar``: per-beam range error, hit/miss
-agreement, Chamfer distance; ``trajectory``: ATE and RPE (evo's definitions); ``tables``: Markdown and
-fixed-width rendering with n/a for values that could not be computed. Bad input raises
-``nsim.errors.InputError``; missing LPIPS weights raise ``LpipsUnavailable``.
+agreement, Chamfer distance; ``trajectory``: ATE and RPE (evo's definitions); ``slam``: SLAM (pycolmap
+or an external TUM file) on simulated vs real frames, both ATEs and their difference; ``detection``: box
+IoU, matching, HOG / ONNX / COCO-JSON detections on simulated vs real frames; ``tables``: Markdown,
+text, LaTeX (booktabs), CSV and JSON with n/a for values that could not be computed; ``paper_tables``:
+the paper's five tables and plots from per-frame records. Bad input raises ``nsim.errors.InputError``;
+missing LPIPS weights raise ``LpipsUnavailable``. ``slam`` imports pycolmap only when SLAM runs.
 """
 
 from nsim.metrics.depth import DepthConfig, DepthMetrics, depth_metrics, mean_depth_metrics, valid_depth_mask
+from nsim.metrics.detection import (
+    DetectionComparison,
+    Detections,
+    HogPeopleDetector,
+    MatchConfig,
+    OnnxConfig,
+    OnnxDetector,
+    YoloDecodeConfig,
+    box_iou,
+    box_iou_xywh,
+    compare_detections,
+    decode_yolo,
+    evaluate_detection,
+    match_boxes,
+    nms,
+    read_coco_detections,
+)
 from nsim.metrics.image import psnr, ssim
 from nsim.metrics.lidar import ChamferResult, LidarRangeMetrics, chamfer_distance, lidar_range_metrics
 from nsim.metrics.lpips import LpipsUnavailable, load_lpips, lpips_distance, lpips_or_na, unavailable_reason
-from nsim.metrics.tables import NotAvailable, to_markdown, to_text
+from nsim.metrics.paper_tables import (
+    TABLE_BUILDERS,
+    DepthRecord,
+    DetectionRecord,
+    ImageRecord,
+    SlamRecord,
+    detection_table,
+    plot_bars,
+    plot_depth_error_map,
+    plot_per_frame,
+    scenes_table,
+    slam_table,
+    spot_depth_table,
+    spot_rgb_table,
+)
+from nsim.metrics.slam import SlamComparison, SlamRun, compare_slam, evaluate_slam, run_colmap_slam
+from nsim.metrics.tables import Column, NotAvailable, Table, to_markdown, to_text
 from nsim.metrics.trajectory import AteResult, RpeResult, align_trajectories, ate, rpe, rpe_per_delta
 
 __all__ = [
+    "TABLE_BUILDERS",
     "AteResult",
     "ChamferResult",
+    "Column",
     "DepthConfig",
     "DepthMetrics",
+    "DepthRecord",
+    "DetectionComparison",
+    "DetectionRecord",
+    "Detections",
+    "HogPeopleDetector",
+    "ImageRecord",
     "LidarRangeMetrics",
     "LpipsUnavailable",
+    "MatchConfig",
     "NotAvailable",
+    "OnnxConfig",
+    "OnnxDetector",
     "RpeResult",
+    "SlamComparison",
+    "SlamRecord",
+    "SlamRun",
+    "Table",
+    "YoloDecodeConfig",
     "align_trajectories",
     "ate",
+    "box_iou",
+    "box_iou_xywh",
     "chamfer_distance",
+    "compare_detections",
+    "compare_slam",
+    "decode_yolo",
     "depth_metrics",
+    "detection_table",
+    "evaluate_detection",
+    "evaluate_slam",
     "lidar_range_metrics",
     "load_lpips",
     "lpips_distance",
     "lpips_or_na",
+    "match_boxes",
     "mean_depth_metrics",
+    "nms",
+    "plot_bars",
+    "plot_depth_error_map",
+    "plot_per_frame",
     "psnr",
+    "read_coco_detections",
     "rpe",
     "rpe_per_delta",
+    "run_colmap_slam",
+    "scenes_table",
+    "slam_table",
+    "spot_depth_table",
+    "spot_rgb_table",
     "ssim",
     "to_markdown",
     "to_text",
