@@ -26,6 +26,7 @@ OPENCV, OPENCV_FISHEYE, EQUIRECTANGULAR (conservative angular test)
     (``Camera.max_angle_rad``) where such a ray hits the box. All three are sampled -- edges
     adaptively until consecutive projected samples are <= 0.5 px apart, border rays every
     0.5 px, the rim every 0.1 deg -- and the extent is grown by ``margin_px`` (default 1 px).
+    A box across the equirectangular seam (longitude +-180 deg) gets the full image width.
 
 Rays use a ray-box slab test on an oriented box (``ray_box_intervals``), which also serves the
 LiDAR (``lidar_ray_box_mask``). Conventions (``nsim.geometry.conventions``): ``world_to_cam``
@@ -315,7 +316,8 @@ def camera_box_bounds(
 
     camera: intrinsics; world_to_cam: ``(4, 4)`` rigid, OpenCV camera axes; box_corners: ``(8, 3)``
     world corners (this module's order) or an ``OrientedBox``. near_m: points nearer than this along
-    the optical axis (PINHOLE) / the ray (other models) do not count. margin_px: growth of the
+    the optical axis do not count (PINHOLE; the sampled models only ignore border/rim ray hits
+    nearer than this along the ray, which keeps them conservative). margin_px: growth of the
     sampled (non-PINHOLE) bound; PINHOLE bounds are exact. Returns ``(u0, v0, u1, v1)`` within
     ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``: every point of the box that projects into the image
     projects inside it. See the module docstring for the method.

@@ -1,0 +1,65 @@
+"""Procedural gait: requested speed, speed relations, closed loops, planted feet, shipped clips."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nsim.crowd.gait import stride_length_m
+from nsim.human.bvh import format_bvh
+from nsim.human.gait import DEFAULT_CLIPS, cadence_steps_per_min, default_clip, idle_cycle, turn, walk_cycle
+from nsim.human.motion import LocomotionLoop
+from nsim.human.skeleton import heading_yaw
+
+MOTIONS = Path(__file__).resolve().parents[2] / "configs" / "motions"
+
+
+@pytest.mark.parametrize("speed", [0.8, 1.3, 1.8])
+def test_walk_root_speed_matches_the_request(speed):
+    clip = walk_cycle(speed)
+    root = clip.root_positions_m
+    measured = np.linalg.norm(root[-1, :2] - root[0, :2]) / clip.duration_s
+    assert measured == pytest.approx(speed, rel=0.02)
+    assert LocomotionLoop.from_clip(clip).speed_mps == pytest.approx(speed, rel=0.02)
+    # the stride is the crowd simulator's, so its gait phase plays the clip without sliding
+    assert np.linalg.norm(root[-1, :2] - root[0, :2]) == pytest.approx(stride_length_m(speed), rel=1e-9)
+
+
+def test_cadence_grows_with_speed_in_the_measured_range():
+    cadences = [cadence_steps_per_min(v) for v in (0.8, 1.3, 1.8)]
+    assert cadences == sorted(cadences)
+    assert 80 < cadences[0] < 95 and 100 < cadences[1] < 120 and 115 < cadences[2] < 140
+
+
+def test_walk_cycle_closes_and_feet_stay_planted():
+    clip = walk_cycle(1.3)
+    q = clip.local_rotations_wxyz
+    np.testing.assert_allclose(np.abs(np.sum(q[0] * q[-1], axis=-1)), 1.0, atol=1e-12)
+    P = clip.joint_positions()
+    names = clip.skeleton.joint_names
+    assert P[..., 2].min() >= 0.03 - 1e-9  # nothing below the sole height
+    ball = P[:, names.index("left_foot")]
+    planted = ball[:, 2] < 0.03 + 1e-6
+    assert planted.sum() >= 0.3 * len(ball)
+    assert np.ptp(ball[planted, 0]) < 1e-6  # the stance foot does not slide
+    # the left foot is ahead at phase 0 (left heel strike), the right one at 0.5
+    half = clip.num_frames // 2
+    assert P[0, names.index("left_ankle"), 0] > P[0, names.index("right_ankle"), 0]
+    assert P[half, names.index("right_ankle"), 0] > P[half, names.index("left_ankle"), 0]
+
+
+def test_idle_and_turn():
+    idle = idle_cycle()
+    assert np.abs(idle.root_positions_m[:, :2]).max() < 0.05
+    assert LocomotionLoop.from_clip(idle).speed_mps == 0.0
+    clip = turn(1.0, 45.0, 2.0)
+    yaw = np.unwrap(heading_yaw(clip.rotation_matrices()[:, 0]))
+    assert yaw[-1] - yaw[0] == pytest.approx(np.radians(90.0), abs=np.radians(15.0))
+
+
+@pytest.mark.parametrize("name", list(DEFAULT_CLIPS))
+def test_shipped_clips_equal_a_regeneration(name):
+    shipped = (MOTIONS / f"{name}.bvh").read_text()
+    assert shipped == format_bvh(default_clip(name)), f"regenerate with: python -m nsim.human.gait {MOTIONS}"

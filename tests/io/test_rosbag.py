@@ -1,0 +1,170 @@
+"""ROS 2 bag export: write a few ticks, read them back with rosbags' Reader, compare every value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.interfaces import QosDurability
+from rosbags.rosbag2 import Reader
+
+from nsim.geometry import Camera, make_se3
+from nsim.io.rosbag import TYPESTORE, BagWriter, matrix_from_transform, read_image, read_pointcloud
+from nsim.sensors import Rig
+
+
+@pytest.fixture(scope="module")
+def rig() -> Rig:
+    return Rig.from_data({
+        "name": "mini",
+        "sensors": [
+            {"name": "front", "type": "camera", "mount": {"xyz_m": [0.4, 0.0, 0.1], "rpy_deg": [78.0, 30.0, -20.0]},
+             "intrinsics": {"model": "OPENCV_FISHEYE", "width": 16, "height": 12, "preset": "spot_fisheye"}, "depth": True},
+            {"name": "cam", "type": "camera", "mount": {"xyz_m": [0.1, 0.0, 0.2]},
+             "intrinsics": {"model": "OPENCV", "width": 8, "height": 6, "fx": 5.0, "dist": [0.1, -0.01, 0.001, 0.002, 0.003]},
+             "color": "gray"},
+            {"name": "lidar", "type": "lidar", "mount": {"xyz_m": [0.0, 0.0, 0.3], "rpy_deg": [0.0, 0.0, 10.0]},
+             "lidar": {"channels": 4, "vertical_fov_deg": [-15, 15], "azimuth_samples": 10}},
+        ],
+    })
+
+
+def _poses(n: int) -> list[np.ndarray]:
+    out = []
+    for k in range(n):  # 0.5 m/s forward while turning at 0.2 rad/s, sampled at 10 Hz
+        yaw = 0.02 * k
+        R = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+        out.append(make_se3(R, np.array([0.05 * k, 0.0, 0.5])))
+    return out
+
+
+def _write(path: Path, rig: Rig, n: int = 3, **kwargs):
+    rng = np.random.default_rng(0)
+    ticks = []
+    with BagWriter(path, rig, **kwargs) as bag:
+        for k, pose in enumerate(_poses(n)):
+            rgb = rng.integers(0, 256, size=(12, 16, 3), dtype=np.uint8)
+            gray = rng.uniform(0.0, 1.0, size=(6, 8)).astype(np.float32)
+            depth = rng.uniform(0.2, 5.0, size=(12, 16)).astype(np.float32)
+            depth[0, 0], depth[0, 1] = np.inf, np.nan
+            lidar = rig["lidar"]
+            ranges = rng.uniform(1.0, 9.0, size=lidar.ray_shape)
+            ranges[1, 2] = np.inf
+            scan = lidar.scan(ranges, intensity=rng.uniform(0, 1, size=lidar.ray_shape))
+            bag.write_tick(0.1 * k, pose, images={"front": rgb, "cam": gray}, depths={"front": depth},
+                           clouds={"lidar": scan})
+            ticks.append({"pose": pose, "rgb": rgb, "gray": gray, "depth": depth, "scan": scan})
+    return ticks
+
+
+def _messages(path: Path) -> dict[str, list]:
+    out: dict[str, list] = {}
+    with Reader(path) as reader:
+        for conn, t_ns, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t_ns, TYPESTORE.deserialize_cdr(raw, conn.msgtype)))
+    return out
+
+
+def test_bag_round_trip(tmp_path, rig):
+    path = tmp_path / "run"
+    ticks = _write(path, rig)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no temporary debris
+    with Reader(path) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        tf_static = next(c for c in reader.connections if c.topic == "/tf_static")
+        assert tf_static.ext.offered_qos_profiles[0].durability == QosDurability.TRANSIENT_LOCAL
+    assert types == {
+        "/tf_static": "tf2_msgs/msg/TFMessage", "/tf": "tf2_msgs/msg/TFMessage", "/odom": "nav_msgs/msg/Odometry",
+        "/front/image": "sensor_msgs/msg/Image", "/front/depth": "sensor_msgs/msg/Image",
+        "/front/camera_info": "sensor_msgs/msg/CameraInfo", "/cam/image": "sensor_msgs/msg/Image",
+        "/cam/camera_info": "sensor_msgs/msg/CameraInfo", "/lidar/points": "sensor_msgs/msg/PointCloud2",
+    }
+    msgs = _messages(path)
+    assert len(msgs["/tf_static"]) == 1 and all(len(msgs[t]) == 3 for t in types if t != "/tf_static")
+    assert len(msgs["/front/camera_info"]) == 3  # one per tick although the camera sent image and depth
+
+    (_, static), = msgs["/tf_static"]
+    frames = {t.child_frame_id: t for t in static.transforms}
+    assert set(frames) == {"front_optical", "cam_optical", "lidar"}
+    for name, frame in (("front", "front_optical"), ("cam", "cam_optical"), ("lidar", "lidar")):
+        assert frames[frame].header.frame_id == "body"
+        np.testing.assert_allclose(matrix_from_transform(frames[frame].transform), rig[name].sensor_to_body, atol=1e-12)
+
+    for k, tick in enumerate(ticks):
+        t_ns = round(0.1 * k * 1e9)
+        stamp_of = {topic: msgs[topic][k][0] for topic in types if topic != "/tf_static"}
+        assert set(stamp_of.values()) == {t_ns}
+        tf = msgs["/tf"][k][1].transforms[0]
+        assert (tf.header.frame_id, tf.child_frame_id) == ("odom", "body")
+        assert tf.header.stamp.sec * 10**9 + tf.header.stamp.nanosec == t_ns
+        np.testing.assert_allclose(matrix_from_transform(tf.transform), tick["pose"], atol=1e-12)
+
+        image = msgs["/front/image"][k][1]
+        assert (image.encoding, image.header.frame_id, image.step) == ("rgb8", "front_optical", 48)
+        np.testing.assert_array_equal(read_image(image), tick["rgb"])
+        gray = msgs["/cam/image"][k][1]
+        assert gray.encoding == "mono8"
+        np.testing.assert_array_equal(read_image(gray), np.rint(tick["gray"] * 255).astype(np.uint8))
+        depth = msgs["/front/depth"][k][1]
+        assert depth.encoding == "32FC1"
+        np.testing.assert_array_equal(read_image(depth).view(np.uint32), tick["depth"].view(np.uint32))  # inf, NaN too
+
+        cloud = read_pointcloud(msgs["/lidar/points"][k][1])
+        scan = tick["scan"]
+        assert msgs["/lidar/points"][k][1].header.frame_id == "lidar" and len(cloud) == scan.hit.sum() == 39
+        np.testing.assert_array_equal(np.stack([cloud["x"], cloud["y"], cloud["z"]], 1), scan.xyz_m[scan.hit])
+        np.testing.assert_array_equal(cloud["intensity"], scan.intensity[scan.hit])
+        np.testing.assert_array_equal(cloud["ring"], scan.ring[scan.hit])
+        assert cloud.dtype["ring"] == np.dtype("<u2")
+
+
+def test_camera_info(tmp_path, rig):
+    _write(tmp_path / "run", rig, n=1)
+    msgs = _messages(tmp_path / "run")
+    fish = msgs["/front/camera_info"][0][1]
+    cam: Camera = rig["front"].camera
+    assert fish.distortion_model == "equidistant" and (fish.width, fish.height) == (16, 12)
+    np.testing.assert_allclose(fish.d, cam.dist)
+    np.testing.assert_allclose(fish.k.reshape(3, 3), cam.K)
+    np.testing.assert_allclose(fish.p.reshape(3, 4), np.hstack([cam.K, np.zeros((3, 1))]))
+    np.testing.assert_allclose(fish.r.reshape(3, 3), np.eye(3))
+    plumb = msgs["/cam/camera_info"][0][1]
+    assert plumb.distortion_model == "plumb_bob"
+    np.testing.assert_allclose(plumb.d, [0.1, -0.01, 0.001, 0.002, 0.003])
+
+
+def test_odometry_twist_is_in_the_body_frame(tmp_path, rig):
+    _write(tmp_path / "run", rig, n=3)
+    odom = [m for _, m in _messages(tmp_path / "run")["/odom"]]
+    assert (odom[0].header.frame_id, odom[0].child_frame_id) == ("odom", "body")
+    first = odom[0].twist.twist
+    assert (first.linear.x, first.angular.z) == (0.0, 0.0)
+    for msg, pose in zip(odom, _poses(3), strict=True):
+        np.testing.assert_allclose(matrix_from_transform(msg.pose.pose), pose, atol=1e-12)
+    tw = odom[2].twist.twist
+    speed_body = _poses(3)[2][:3, :3].T @ (_poses(3)[2][:3, 3] - _poses(3)[1][:3, 3]) / 0.1
+    np.testing.assert_allclose([tw.linear.x, tw.linear.y, tw.linear.z], speed_body, atol=1e-9)
+    np.testing.assert_allclose([tw.angular.x, tw.angular.y, tw.angular.z], [0.0, 0.0, 0.2], atol=1e-9)
+
+
+def test_namespace_mcap_and_offset(tmp_path, rig):
+    _write(tmp_path / "run", rig, n=2, namespace="/spot", storage="mcap", time_offset_ns=1_700_000_000 * 10**9)
+    assert (tmp_path / "run" / "run.mcap").is_file()
+    msgs = _messages(tmp_path / "run")
+    assert "/spot/front/image" in msgs and "/spot/odom" in msgs and "/tf" in msgs
+    assert msgs["/spot/odom"][1][1].header.stamp.sec == 1_700_000_000 and msgs["/spot/odom"][1][0] % 10**9 == 10**8
+
+
+def test_no_bag_is_left_by_a_failure(tmp_path, rig):
+    with pytest.raises(RuntimeError, match="boom"), BagWriter(tmp_path / "run", rig) as bag:
+        bag.write_tick(0.0, np.eye(4))
+        raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "run").mkdir()
+    with pytest.raises(FileExistsError):
+        BagWriter(tmp_path / "run", rig)
+    with BagWriter(tmp_path / "other", rig) as bag:
+        bag.write_tick(0.1, np.eye(4))
+        with pytest.raises(ValueError, match="increasing"):
+            bag.write_tick(0.1, np.eye(4))
