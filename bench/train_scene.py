@@ -122,24 +122,111 @@ def render_speed(model, grid, data: SceneData, frame: int, n_rays: int, march_st
     return out
 
 
-def plot(path: Path, curve: list[dict], title: str) -> None:
+def plot(path: Path, results: dict[str, dict], title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), dpi=90)
-    t = [c["seconds"] for c in curve]
-    for ax, key, label in zip(axes, ("psnr", "ssim", "abs_rel_median"), ("held-out PSNR (dB)", "held-out SSIM",
-                                                                         "depth AbsRel (median)"), strict=True):
-        ax.plot(t, [c[key] for c in curve], "o-")
+    for label, r in results.items():
+        curve = r["curve"]
+        t = [c["seconds"] for c in curve]
+        for ax, key in zip(axes, ("psnr", "ssim", "abs_rel_median"), strict=True):
+            ax.plot(t, [c.get(key, float("nan")) for c in curve], "o-", label=f"{label} poses")
+    for ax, label in zip(axes, ("held-out PSNR (dB)", "held-out SSIM", "depth AbsRel (median)"), strict=True):
         ax.set_xlabel("training seconds")
         ax.set_title(label)
         ax.grid(alpha=0.3)
+        ax.legend()
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)
+
+
+def reconstructed_data(ws: Path, cap_dir: Path, quick: bool) -> SceneData:
+    """Poses from ``nsim reconstruct`` on the capture's frames (metric via the ground-truth TUM
+    as odometry), with the capture's depth EXRs attached by frame name (for scoring only)."""
+    from nsim.stages import reconstruct
+
+    store = Store(ws)
+    cap_id = next(a.id for a in store.artifacts() if a.path == cap_dir)
+    n = json.loads((cap_dir / "manifest.json").read_text())["config"]["n_frames"]
+    cfg = load_config(reconstruct.Config, stage="reconstruct", preset="tiny" if quick else "default",
+                      overrides=[f"frames={n}"])
+    ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
+    out = reconstruct.run(reconstruct.Inputs(capture=cap_id, reference=cap_dir / "gt_trajectory.tum"), cfg, ctx)
+    data = SceneData.load(store.get(out.poses).path)
+    cap = SceneData.load(cap_dir)
+    by_name = {Path(nm).name: dp for nm, dp in zip(cap.names, cap.depth_paths, strict=True)}
+    data.depth_paths = [by_name.get(Path(nm).name) for nm in data.names]
+    return data
+
+
+def bench_one(label: str, data: SceneData, cfg: TrainSceneConfig, oracle, args, work: Path) -> dict:
+    """Train on ``data``, score held-out and off-path views, time the renderers; print a table."""
+    held = [int(i) for i in data.split(cfg.data.holdout_every)[1]]
+    views = _spread(held, args.eval_views)
+    every = max(1, cfg.optim.steps // max(1, args.evals))
+    curve: list[dict] = []
+
+    def on_log(trainer, stats):
+        if trainer.step % every == 0 and trainer.step < cfg.optim.steps:
+            ev = trainer.evaluate(views)["mean"]
+            curve.append({"step": trainer.step, "seconds": trainer.train_seconds, **ev})
+            print(f"  [{label}] step {trainer.step:6d} {trainer.train_seconds:8.1f} s  PSNR {ev['psnr']:6.2f}  "
+                  f"SSIM {ev['ssim']:.3f}  AbsRel {ev.get('abs_rel_median', float('nan')):.4f}", flush=True)
+
+    log_every = math.gcd(every, cfg.output.log_every)
+    cfg = from_dict(TrainSceneConfig, {**_to_plain(cfg), "output": {**_to_plain(cfg.output), "log_every": log_every,
+                                                                  "checkpoint_every": cfg.optim.steps}})
+    t_wall = time.perf_counter()
+    result = train_scene(data, cfg, work, device="cpu", seed=0, on_log=on_log)
+    wall_s = time.perf_counter() - t_wall
+    trainer = result.trainer
+    final = trainer.evaluate(held)["mean"]
+    curve.append({"step": trainer.step, "seconds": trainer.train_seconds, **final})
+    baseline = constant_color_psnr(data, cfg.data.holdout_every)
+    model = trainer.model.eval()
+    t0 = time.perf_counter()
+    grid = bake_occupancy(trainer)
+    bake_s = time.perf_counter() - t0
+    poses = off_path_poses(data, _spread(held, args.off_path_views))
+    off = score_off_path(model, oracle, data, poses)
+    off_grid = score_off_path(model, oracle, data, poses, method="march", grid=grid)
+    speed = render_speed(model, grid, data, held[len(held) // 2], args.speed_rays, 0.01)
+
+    print()
+    print(f"[{label}] {data.n_frames} frames {data.size_hw[1]}x{data.size_hw[0]}")
+    print(f"{'step':>6} {'train s':>8} {'PSNR':>7} {'SSIM':>6} {'AbsRel med':>10} {'AbsRel exp':>10}")
+    for c in curve:
+        print(f"{c['step']:6d} {c['seconds']:8.1f} {c['psnr']:7.2f} {c['ssim']:6.3f} "
+              f"{c.get('abs_rel_median', float('nan')):10.4f} {c.get('abs_rel_expected', float('nan')):10.4f}")
+    print(f"held-out (all {len(held)} views)      PSNR {final['psnr']:.2f}  SSIM {final['ssim']:.3f}  "
+          f"AbsRel median {final.get('abs_rel_median', float('nan')):.4f}  "
+          f"expected {final.get('abs_rel_expected', float('nan')):.4f}")
+    print(f"off-path (0.5-0.7 m, 30 cm aside)  PSNR {off['psnr']:.2f}  SSIM {off['ssim']:.3f}  "
+          f"AbsRel median {off['abs_rel_median']:.4f}   (marching + grid: PSNR {off_grid['psnr']:.2f})")
+    print(f"constant-colour baseline PSNR {baseline:.2f}")
+    print(f"training wall {wall_s:.1f} s (train clock {trainer.train_seconds:.1f} s), occupancy bake {bake_s:.1f} s, "
+          f"occupied {grid.occupied_fraction:.3f}")
+    print(f"render rays/s: proposal {speed['proposal_rays_per_s']:.0f}, march dense {speed['march_dense_rays_per_s']:.0f}, "
+          f"march + grid {speed['march_grid_rays_per_s']:.0f} (x{speed['grid_speedup']:.1f}); "
+          f"PSNR grid vs dense {speed['psnr_grid_vs_dense']:.1f} dB, march vs proposal {speed['psnr_march_vs_proposal']:.1f} dB")
+    print(flush=True)
+    return {
+        "frames": data.n_frames, "steps": trainer.step,
+        "train_seconds": round(trainer.train_seconds, 1), "wall_seconds": round(wall_s, 1),
+        "heldout": {k: round(v, 4) for k, v in final.items()},
+        "off_path": {k: round(v, 4) for k, v in off.items()},
+        "off_path_march_grid_psnr": round(off_grid["psnr"], 3),
+        "constant_color_psnr": round(baseline, 3),
+        "occupied_fraction": round(grid.occupied_fraction, 4),
+        "curve": [{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()} for c in curve],
+        "render": {k: round(v, 2) for k, v in speed.items()},
+        "occupancy_bake_seconds": round(bake_s, 1),
+    }
 
 
 def main() -> None:
@@ -147,99 +234,56 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--preset", default=None, help="train_scene preset (default: cpu, tiny with --quick)")
     ap.add_argument("--set", action="append", default=[], help="config override key=value (repeatable)")
+    ap.add_argument("--poses", choices=("gt", "reconstruct", "both"), default=None,
+                    help="ground-truth poses, poses from nsim reconstruct, or both (default: both; gt with --quick)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--evals", type=int, default=8, help="evaluations during training")
+    ap.add_argument("--evals", type=int, default=None, help="evaluations during training (default 8, 2 with --quick)")
     ap.add_argument("--eval-views", type=int, default=4, help="held-out views per evaluation during training")
     ap.add_argument("--off-path-views", type=int, default=4)
-    ap.add_argument("--speed-rays", type=int, default=4096)
+    ap.add_argument("--speed-rays", type=int, default=None, help="rays for the speed test (default 4096, 1024 quick)")
     ap.add_argument("--workspace", type=Path, default=None, help="reuse captures here (default: a temp dir)")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "out" / "train_scene.png")
     args = ap.parse_args()
     preset = args.preset or ("tiny" if args.quick else "cpu")
-    overrides = [f"optim.num_threads={args.threads}", *args.set]
+    poses_mode = args.poses or ("gt" if args.quick else "both")
+    args.evals = args.evals if args.evals is not None else (2 if args.quick else 8)
+    args.speed_rays = args.speed_rays or (1024 if args.quick else 4096)
+    overrides = [f"optim.num_threads={args.threads}", *(["optim.steps=300"] if args.quick else []), *args.set]
     cfg = load_config(TrainSceneConfig, stage="train_scene", preset=preset, overrides=overrides)
     torch.set_num_threads(args.threads)
+    from nsim.synth.oracle import RoomOracle
+    from nsim.synth.room import RoomSpec
 
+    results = {}
     with tempfile.TemporaryDirectory() as tmp:
         ws = args.workspace or Path(tmp) / "ws"
         cap_dir = make_capture(ws, args.quick)
-        data = SceneData.load(cap_dir)
-        held = [int(i) for i in data.split(cfg.data.holdout_every)[1]]
-        views = _spread(held, args.eval_views)
-        every = max(1, cfg.optim.steps // max(1, args.evals))
-        curve: list[dict] = []
+        oracle = RoomOracle(RoomSpec.from_dict(json.loads((cap_dir / "room.json").read_text())["spec"]))
+        if poses_mode in ("gt", "both"):
+            results["gt"] = bench_one("gt poses", SceneData.load(cap_dir), cfg, oracle, args, Path(tmp) / "work_gt")
+        if poses_mode in ("reconstruct", "both"):
+            t0 = time.perf_counter()
+            data = reconstructed_data(ws, cap_dir, args.quick)
+            rec_s = time.perf_counter() - t0
+            results["reconstruct"] = {"reconstruct_seconds": round(rec_s, 1),
+                                      **bench_one("reconstructed poses", data, cfg, oracle, args, Path(tmp) / "work_rec")}
 
-        def on_log(trainer, stats):
-            if trainer.step % every == 0 and trainer.step < cfg.optim.steps:
-                ev = trainer.evaluate(views)["mean"]
-                curve.append({"step": trainer.step, "seconds": trainer.train_seconds, **ev})
-                print(f"  step {trainer.step:6d} {trainer.train_seconds:8.1f} s  PSNR {ev['psnr']:6.2f}  "
-                      f"SSIM {ev['ssim']:.3f}  AbsRel {ev.get('abs_rel_median', float('nan')):.4f}", flush=True)
-
-        log_every = math.gcd(every, cfg.output.log_every)
-        cfg = from_dict(TrainSceneConfig, {**json.loads(json.dumps(_to_plain(cfg))),
-                                           "output": {**_to_plain(cfg.output), "log_every": log_every,
-                                                      "checkpoint_every": cfg.optim.steps}})
-        t_wall = time.perf_counter()
-        result = train_scene(data, cfg, Path(tmp) / "work", device="cpu", seed=0, on_log=on_log)
-        wall_s = time.perf_counter() - t_wall
-        trainer = result.trainer
-        final = trainer.evaluate(held)["mean"]
-        curve.append({"step": trainer.step, "seconds": trainer.train_seconds, **final})
-        baseline = constant_color_psnr(data, cfg.data.holdout_every)
-
-        # off the capture path, scored against the oracle
-        import json as _json
-
-        from nsim.synth.oracle import RoomOracle
-        from nsim.synth.room import RoomSpec
-
-        oracle = RoomOracle(RoomSpec.from_dict(_json.loads((cap_dir / "room.json").read_text())["spec"]))
-        model = trainer.model.eval()
-        t0 = time.perf_counter()
-        grid = bake_occupancy(trainer)
-        bake_s = time.perf_counter() - t0
-        off = score_off_path(model, oracle, data, off_path_poses(data, _spread(held, args.off_path_views)))
-        off_grid = score_off_path(model, oracle, data, off_path_poses(data, _spread(held, args.off_path_views)),
-                                  method="march", grid=grid)
-        speed = render_speed(model, grid, data, held[len(held) // 2], args.speed_rays, 0.01)
-
-    title = f"train_scene preset={preset}, {data.n_frames} frames {data.size_hw[1]}x{data.size_hw[0]}, {args.threads} threads"
+    title = f"train_scene preset={preset}, {args.threads} threads"
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    plot(args.out, curve, title)
-    print()
+    plot(args.out, results, title)
     print(title)
-    print(f"{'step':>6} {'train s':>8} {'PSNR':>7} {'SSIM':>6} {'AbsRel med':>10} {'AbsRel exp':>10}")
-    for c in curve:
-        print(f"{c['step']:6d} {c['seconds']:8.1f} {c['psnr']:7.2f} {c['ssim']:6.3f} "
-              f"{c.get('abs_rel_median', float('nan')):10.4f} {c.get('abs_rel_expected', float('nan')):10.4f}")
-    print()
-    print(f"held-out (all {len(held)} views)      PSNR {final['psnr']:.2f}  SSIM {final['ssim']:.3f}  "
-          f"AbsRel median {final.get('abs_rel_median', float('nan')):.4f}  expected {final.get('abs_rel_expected', float('nan')):.4f}")
-    print(f"off-path (0.5-0.7 m, 30 cm aside)  PSNR {off['psnr']:.2f}  SSIM {off['ssim']:.3f}  AbsRel median {off['abs_rel_median']:.4f}"
-          f"   (marching + grid: PSNR {off_grid['psnr']:.2f})")
-    print(f"constant-colour baseline PSNR {baseline:.2f}")
-    print(f"training wall {wall_s:.1f} s (train clock {trainer.train_seconds:.1f} s), occupancy bake {bake_s:.1f} s, "
-          f"occupied {grid.occupied_fraction:.3f}")
-    print(f"render rays/s: proposal {speed['proposal_rays_per_s']:.0f}, march dense {speed['march_dense_rays_per_s']:.0f}, "
-          f"march + grid {speed['march_grid_rays_per_s']:.0f} (x{speed['grid_speedup']:.1f}); "
-          f"PSNR grid vs dense {speed['psnr_grid_vs_dense']:.1f} dB, march vs proposal {speed['psnr_march_vs_proposal']:.1f} dB")
+    print(f"{'poses':<12} {'train s':>8} {'PSNR':>7} {'SSIM':>6} {'AbsRel med':>10} {'AbsRel exp':>10} "
+          f"{'off-path PSNR':>13} {'grid x':>7} {'grid-vs-dense dB':>16}")
+    for label, r in results.items():
+        h = r["heldout"]
+        print(f"{label:<12} {r['train_seconds']:8.1f} {h['psnr']:7.2f} {h['ssim']:6.3f} {h.get('abs_rel_median', float('nan')):10.4f} "
+              f"{h.get('abs_rel_expected', float('nan')):10.4f} {r['off_path']['psnr']:13.2f} "
+              f"{r['render']['grid_speedup']:7.1f} {r['render']['psnr_grid_vs_dense']:16.1f}")
     print(f"curves: {args.out}")
-    summary = {
-        "preset": preset, "threads": args.threads, "frames": data.n_frames, "steps": trainer.step,
-        "train_seconds": round(trainer.train_seconds, 1), "wall_seconds": round(wall_s, 1),
-        "heldout": {k: round(v, 4) for k, v in final.items()},
-        "off_path": {k: round(v, 4) for k, v in off.items()},
-        "off_path_march_grid_psnr": round(off_grid["psnr"], 3),
-        "constant_color_psnr": round(baseline, 3),
-        "curve": [{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()} for c in curve],
-        "render": {k: round(v, 2) for k, v in speed.items()},
-        "occupancy_bake_seconds": round(bake_s, 1),
-    }
-    print(json.dumps(summary))
+    print(json.dumps({"preset": preset, "threads": args.threads, **results}))
 
 
-def _to_plain(cfg):
+def _to_plain(cfg) -> dict:
     from nsim.config import to_dict
 
     return to_dict(cfg)

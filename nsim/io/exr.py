@@ -55,13 +55,15 @@ def write_exr(
     channels: Mapping[str, np.ndarray],
     half: bool | Collection[str] = False,
     compression: str = "ZIP",
+    attributes: Mapping[str, str] | None = None,
 ) -> Path:
     """Write named (H, W) channels (all the same shape) to a single-part scanline EXR, atomically.
 
     Storage per channel: float16 if named in `half` (or `half is True`, or the array is already
     float16; float32 values beyond ±65504 become ±inf); uint32 for bool/unsigned ints; float32 for other
     floats (float64 is rounded to float32). `compression` is one of NONE, RLE, ZIPS, ZIP, PIZ (all
-    lossless). Returns `path`.
+    lossless). `attributes`: extra string attributes for the header (e.g. what a depth
+    channel means). Returns `path`.
     """
     if not channels:
         raise ValueError("write_exr: no channels given")
@@ -75,6 +77,10 @@ def write_exr(
     if len(shapes) != 1:
         raise ValueError(f"write_exr: channels differ in shape: { {n: a.shape for n, a in arrays.items()} }")
     header = {"compression": _COMPRESSION[compression], "type": OpenEXR.scanlineimage}
+    for key, value in (attributes or {}).items():
+        if key in header or not isinstance(value, str):
+            raise ValueError(f"write_exr: attribute {key!r} must be a new name with a string value")
+        header[key] = value
     path = Path(path)
     with atomic_path(path) as tmp, OpenEXR.File(header, arrays) as exr:
         exr.write(str(tmp))
@@ -114,9 +120,11 @@ def _channel(path: Path, channels: dict[str, np.ndarray], name: str, float_only:
     return channels[name]
 
 
-def write_depth_exr(path: str | os.PathLike, depth_m: np.ndarray) -> Path:
-    """Write (H, W) depth in metres as one float32 channel `Z`; inf = no hit, NaN = invalid."""
-    return write_exr(path, {"Z": np.asarray(depth_m, dtype=np.float32)})
+def write_depth_exr(path: str | os.PathLike, depth_m: np.ndarray, attributes: Mapping[str, str] | None = None) -> Path:
+    """Write (H, W) depth in metres as one float32 channel `Z`; inf = no hit, NaN = invalid.
+
+    `attributes`: header strings saying what the depth is (e.g. ``nsim_depth: z-depth``)."""
+    return write_exr(path, {"Z": np.asarray(depth_m, dtype=np.float32)}, attributes=attributes)
 
 
 def read_depth_exr(path: str | os.PathLike) -> np.ndarray:
@@ -161,3 +169,16 @@ def read_points_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
     for name in "XYZ":
         _channel(path, channels, name)
     return channels
+
+
+def read_exr_attributes(path: str | os.PathLike) -> dict[str, str]:
+    """The string attributes of an EXR header (e.g. ``nsim_depth``), without reading pixels."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            header = dict(exr.header())  # copy inside the block: the binding empties it on close
+    except Exception as err:  # noqa: BLE001 - the binding raises bare errors for corrupt files
+        raise InputError(f"{path}: not a readable OpenEXR file ({err})") from None
+    return {k: v for k, v in header.items() if isinstance(v, str)}

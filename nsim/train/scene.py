@@ -754,13 +754,16 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
     grid.save(out_dir / "occupancy_grid.npy")
     obstacles = bake_obstacles(trainer)
     obstacles.to_png(out_dir / "obstacles.png")
-    (out_dir / "obstacles.json").write_text(json.dumps({
+    obstacle_doc = json.dumps({
         "units": "m",
         "frame": "world, z up; polygons in the xy plane (counter-clockwise)",
         "height_band_m": list(obstacles.band_m),
         "cell_m": obstacles.cell_m,
         "polygons": [np.round(p, 6).tolist() for p in obstacles.polygons()],
-    }, indent=1) + "\n")
+    }, indent=1) + "\n"
+    (out_dir / "obstacles.json").write_text(obstacle_doc)
+    # the same map under the name the crowd simulator reads from any layout artifact (nsim simulate)
+    (out_dir / "occupancy.json").write_text(obstacle_doc)
     history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
     plot_curves(out_dir / "curves.png", history)
     (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
