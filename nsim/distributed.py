@@ -8,9 +8,11 @@ Engines
     ``local`` with ``workers=1`` (the default): sequential, in this process.
     ``local`` with ``workers>1``: a ``concurrent.futures`` process pool (``spawn`` start method,
     so workers never inherit locks or threads from the parent).
-    ``ray``: Ray tasks. ``address=None`` starts a private local Ray instance (``workers`` CPUs);
+    ``ray``: Ray tasks. ``address=None`` uses ``$RAY_ADDRESS`` if set, else starts a private local
+    Ray instance (``workers`` CPUs, no dashboard; it never attaches to a stray cluster);
     ``address="auto"`` or ``"HOST:6379"`` joins a running cluster, ``"ray://HOST:10001"`` connects
-    through the Ray client. Ray is optional and imported only here: ``pip install 'ray[default]'``.
+    through the Ray client (:func:`ray_session`, shared with ``nsim.rendering.engine``). Ray is
+    optional and imported only when asked for: ``pip install 'nsim[ray]'``.
 
 Stages that publish from workers rely on the workspace being safe for concurrent writers (it is:
 ``nsim.workspace.store`` writes under ``tmp/`` and renames into place) and, across machines, on a
@@ -25,7 +27,7 @@ the command on the head node only, e.g. in an sbatch script over N nodes::
         nsim simulate --sweep sweep.yaml --engine ray --address auto --summary summary.md
 
 (the workspace, the virtual environment and the sweep file on the shared filesystem; see
-``ray symmetric-run --help`` for the options of your Ray version).
+docs/cluster.md and ``ray symmetric-run --help``).
 
 User errors (:class:`~nsim.errors.NsimError`) raised by a task come back as an ``NsimError``
 naming the task's index; any other exception propagates with its traceback.
@@ -33,8 +35,11 @@ naming the task's index; any other exception propagates with its traceback.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable, Sequence
+import logging
+import os
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 from nsim.errors import NsimError
@@ -43,7 +48,7 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 ENGINES = ("local", "ray")
-RAY_HOWTO = "pip install 'ray[default]'"
+RAY_HOWTO = "pip install 'nsim[ray]' (or 'ray[default]>=2.49')"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,22 +116,49 @@ def import_ray():
     return ray
 
 
-def _map_ray(guarded: _Guarded, items: list[Any], address: str | None, workers: int) -> list[Any]:
+def resolve_ray_address(address: str | None) -> str:
+    """``address``, else ``$RAY_ADDRESS``, else ``"local"`` (a new private instance; never a stray cluster)."""
+    if address:
+        return address
+    return os.environ.get("RAY_ADDRESS") or "local"
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None, *, num_cpus: int) -> Iterator[Any]:
+    """The ``ray`` module, connected for the duration of the block.
+
+    If this process already called ``ray.init`` (a caller's or a test's session), that session is
+    used as is and left running. Otherwise Ray is started or joined at :func:`resolve_ray_address`:
+    ``"local"`` starts a private instance with ``num_cpus`` logical CPUs, the GPUs Ray detects and
+    no dashboard; anything else joins that cluster (``auto``, ``HOST:6379``, ``ray://HOST:10001``)
+    and uses its resources. What was started or joined here is shut down on exit. Ray's
+    ``RAY_AUTH_MODE`` (token authentication, on by default for new clusters since Ray 2.5x) is left
+    to the environment; see docs/cluster.md.
+    """
     ray = import_ray()
-    started = False
-    if not ray.is_initialized():
-        kwargs: dict[str, Any] = {"address": address, "log_to_driver": False}
-        if address is None:
-            kwargs["num_cpus"] = workers
-        ray.init(**kwargs)
-        started = True
+    if ray.is_initialized():
+        yield ray
+        return
+    resolved = resolve_ray_address(address)
+    kwargs: dict[str, Any] = {"address": resolved, "log_to_driver": False, "logging_level": logging.WARNING}
+    if resolved == "local":
+        kwargs.update(num_cpus=num_cpus, include_dashboard=False)
     try:
+        ray.init(**kwargs)
+    except ConnectionError as exc:
+        where = "--address" if address else "$RAY_ADDRESS"
+        raise NsimError(f"{where} {resolved}: cannot connect to a Ray cluster there ({exc})") from None
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def _map_ray(guarded: _Guarded, items: list[Any], address: str | None, workers: int) -> list[Any]:
+    with ray_session(address, num_cpus=workers) as ray:
         task = ray.remote(num_cpus=1)(_call)
         fn_ref = ray.put(guarded)
         return ray.get([task.remote(fn_ref, x) for x in items])
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def _call(fn: Callable[[Any], Any], item: Any) -> Any:

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from nsim.distributed import RAY_HOWTO, map_tasks
+from nsim.distributed import RAY_HOWTO, map_tasks, resolve_ray_address
 from nsim.errors import InputError, NsimError
 
 
@@ -58,8 +58,19 @@ def test_missing_ray_says_how_to_install(monkeypatch):
     assert RAY_HOWTO in str(err.value) and "\n" not in str(err.value)
 
 
-def test_ray_matches_local():
+def test_ray_address_is_explicit_or_a_private_instance(monkeypatch):
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    assert resolve_ray_address(None) == "local"  # never "auto": a stray cluster is not joined silently
+    assert resolve_ray_address("auto") == "auto"
+    monkeypatch.setenv("RAY_ADDRESS", "head:6379")
+    assert resolve_ray_address(None) == "head:6379"
+    assert resolve_ray_address("other:6379") == "other:6379"
+
+
+def test_ray_matches_local(monkeypatch):
     pytest.importorskip("ray")
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
     items = list(range(6))
     assert map_tasks(square, items, engine="ray", workers=2) == map_tasks(square, items)
     with pytest.raises(NsimError, match=r"^task 3: item 3: bad input$"):

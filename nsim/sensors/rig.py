@@ -432,6 +432,23 @@ class Rig:
         return {"name": self.name, "sensors": sensors}
 
     @classmethod
+    def from_resolved(cls, data: Mapping[str, Any]) -> Rig:
+        """The rig back from :meth:`to_dict` output (e.g. a render artifact's ``rig.json``)."""
+        sensors: list[Sensor] = []
+        for d in data["sensors"]:
+            pose = _readonly(np.asarray(d["sensor_to_body"], dtype=np.float64))
+            if d["type"] == "lidar":
+                sensors.append(LidarSensor(name=d["name"], sensor_to_body=pose, config=from_dict(LidarConfig, d["lidar"]),
+                                           elevations_deg=_readonly(np.asarray(d["elevations_deg"], dtype=np.float64)),
+                                           dropout_prob=float(d["dropout_prob"])))
+            else:
+                depth = None if d.get("depth") is None else from_dict(DepthConfig, d["depth"])
+                sensors.append(CameraSensor(name=d["name"], sensor_to_body=pose, camera=Camera.from_dict(d["camera"]),
+                                            kind=d["type"], color=d["color"], exposure_ev=float(d["exposure_ev"]),
+                                            depth=depth))
+        return cls(name=data["name"], sensors=tuple(sensors))
+
+    @classmethod
     def load(cls, path: str | Path) -> Rig:
         """Read and validate a rig YAML file (see the module docstring)."""
         path = Path(path)

@@ -20,6 +20,7 @@ STAGE_MODULES: dict[str, str] = {
     "reconstruct": "nsim.stages.reconstruct",
     "train_scene": "nsim.stages.train_scene",
     "simulate": "nsim.stages.simulate",
+    "render": "nsim.stages.render",
 }
 
 

@@ -1,0 +1,745 @@
+"""``nsim render``: the robot's sensors in the trained world, frame by frame, as a ``render`` artifact.
+
+Two modes:
+
+``trajectory``
+    For each selected tick of a ``trajectory`` artifact (``nsim simulate``), for each sensor of a
+    rig (``configs/robots/*.yaml``): world pose = robot pose x mount; rays from the camera model
+    or the LiDAR pattern; the scene NeRF rendered along them (marching with the baked occupancy
+    grid, early ray termination) and, with human checkpoints, every visible person's samples
+    merged with the scene's in depth order (one volume rendering over both).
+``poses``
+    Every frame (or the held-out frames) of a ``poses`` / ``capture`` artifact with the frame's own
+    camera: what ``nsim evaluate`` compares with the captured images.
+
+Artifact layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses)::
+
+    render.json                  mode, sensors, frames (index, time, name), conventions, the scene id
+    rig.json                     the resolved rig (mounts, intrinsics, LiDAR patterns)
+    robot.tum                    trajectory mode: the robot body pose at each rendered tick
+    cameras/<sensor>.json        per camera: transforms.json (intrinsics, cam_to_world per frame)
+    <camera>/rgb/NNNNNN.png      8-bit sRGB (gray cameras: one channel)
+    <camera>/rgb_linear/NNNNNN.exr   (rgb_exr: true) linear float16 R, G, B
+    <camera>/depth/NNNNNN.exr    float32 channel Z: the rig's depth kind (z-depth along the optical
+                                 axis unless the rig says range), metres; inf = no return, NaN =
+                                 no valid measurement; stated in the header (nsim_depth)
+    <camera>/mask/NNNNNN.png     (with humans) 16-bit instance mask: 0 background, k = human k
+    <camera>/boxes.json          (with humans) COCO-style person boxes per frame
+    <lidar>/scan/NNNNNN.exr      organised sweep (rows = beams, cols = azimuth): X Y Z (sensor
+                                 frame), range, intensity (= opacity), ring; see nsim.io.lidar_exr
+    <lidar>/scan/NNNNNN.ply      the returns as a point cloud (sensor frame)
+    preview/contact_sheet.png    every ``preview_every``-th frame: the cameras side by side + LiDAR BEV
+    preview/preview.mp4          (video: true) the same for every frame
+
+Sharding: frames are cut into fixed shards of ``shard_frames``; each shard is rendered into its
+own directory under ``<workspace>/tmp/render.<key>.shards/`` and published there by an atomic
+rename, so a rerun after a crash renders only the missing shards. The artifact (and its
+manifest) is published last, from the complete set. Each shard draws its sensor noise from
+generators seeded by (seed, frame, sensor), so the result does not depend on the shard size,
+the engine or the number of workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.config import from_dict, param, to_dict
+from nsim.context import RunContext
+from nsim.errors import InputError
+from nsim.rendering.renderer import MarchConfig
+
+STAGE = "render"
+VERSION = 1
+log = logging.getLogger(__name__)
+
+DEPTH_ATTRIBUTE = {
+    "z": "z-depth: metres along the camera's optical (+z) axis; inf = no return; NaN = no valid measurement",
+    "range": "range: metres along the pixel's ray; inf = no return; NaN = no valid measurement",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    tick_stride: int = param(1, ge=1, help="render every k-th tick (trajectory) or frame (poses)")
+    start: int = param(0, ge=0, help="first tick / frame")
+    max_frames: int | None = param(None, ge=1, help="render at most this many ticks / frames")
+    frames: str = param("all", choices=("all", "heldout"), help="poses mode: all frames or the scene's held-out ones")
+    sensors: tuple[str, ...] = param((), help="rig sensors to render (empty: all)")
+    image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow)")
+    lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep")
+    shard_frames: int = param(8, ge=1, help="frames per shard (the unit of resume and of distribution)")
+    march: MarchConfig = MarchConfig(step_m=0.01)
+    chunk_rays: int = param(16384, ge=256)
+    depth_estimate: str = param("median", choices=("median", "expected"),
+                                help="ray depth: the median of the weights or the normalised expected depth")
+    min_accumulation: float = param(0.5, ge=0.0, le=1.0, help="opacity below which a ray has no return")
+    rgb_exr: bool = param(False, help="also write linear RGB EXR")
+    noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded)")
+    culling: bool = param(True, help="cast human samples only where their posed box is visible")
+    preview_every: int = param(10, ge=1, help="contact sheet: every k-th rendered frame")
+    preview_max_rows: int = param(8, ge=1)
+    video: bool = param(True, help="write preview/preview.mp4")
+    video_fps: float = param(10.0, gt=0.0, le=60.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """trajectory or poses (exactly one); scene: a scene-checkpoint (default: the one the
+    trajectory names); rig: a rig file (trajectory mode); humans: human-checkpoint ids."""
+
+    trajectory: str | None = None
+    poses: str | None = None
+    scene: str | None = None
+    rig: Path | None = None
+    humans: tuple[str, ...] = ()
+
+    def ids(self) -> dict[str, str]:
+        out = {}
+        if self.trajectory:
+            out["trajectory"] = self.trajectory
+        if self.poses:
+            out["poses"] = self.poses
+        if self.scene:
+            out["scene"] = self.scene
+        for k, h in enumerate(self.humans):
+            out[f"human{k}"] = h
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    render: str
+    cache_hit: bool = False
+    shards_rendered: int = 0
+    shards_reused: int = 0
+
+
+# ---------------------------------------------------------------------------------- resolving inputs
+def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
+    """Artifact ids resolved and checked (kinds, the scene checkpoint's presence)."""
+    store = ctx.store
+    if (inputs.trajectory is None) == (inputs.poses is None):
+        raise InputError("render: give exactly one of --trajectory or --poses")
+    traj = poses = None
+    if inputs.trajectory is not None:
+        traj = store.resolve(inputs.trajectory, kind="trajectory")
+        if inputs.rig is None:
+            raise InputError("render --trajectory: a rig file is needed (--rig configs/robots/spot.yaml)")
+    else:
+        poses = store.resolve(inputs.poses)
+        kind = store.get(poses).kind
+        if kind not in ("poses", "capture"):
+            raise InputError(f"--poses {inputs.poses}: a {kind} artifact; render needs a poses or capture artifact")
+    scene = inputs.scene
+    if scene is None and traj is not None:
+        named = store.get(traj).manifest.get("inputs", {}).get("scene")
+        if named is None:
+            raise InputError(f"trajectory {traj[:12]} names no scene checkpoint: pass --scene")
+        if not (store.root / "objects" / named[:2] / named).is_dir():
+            raise InputError(f"trajectory {traj[:12]}: its scene checkpoint {named[:12]} is missing from the "
+                             f"workspace {store.root} (train it with nsim train-scene, or pass --scene)")
+        scene = named
+    elif scene is None:
+        raise InputError("render --poses: pass --scene (a scene-checkpoint artifact)")
+    else:
+        scene = store.resolve(scene, kind="scene-checkpoint")
+    humans = tuple(store.resolve(h, kind="human-checkpoint") for h in inputs.humans)
+    return Inputs(trajectory=traj, poses=poses, scene=scene, rig=inputs.rig, humans=humans)
+
+
+def load_rig_for(inputs: Inputs, cfg: Config):
+    """The rig (scaled and filtered by the config), or None in poses mode."""
+    if inputs.rig is None or inputs.trajectory is None:
+        return None
+    from nsim.sensors.rig import Rig
+
+    rig = Rig.load(inputs.rig)
+    return adapt_rig(rig, cfg)
+
+
+def adapt_rig(rig, cfg: Config):
+    from nsim.sensors.rig import CameraSensor, LidarSensor
+
+    names = list(cfg.sensors) or list(rig.names)
+    unknown = [n for n in names if n not in rig.names]
+    if unknown:
+        raise InputError(f"sensors: the rig {rig.name!r} has no sensor {', '.join(unknown)} (has {', '.join(rig.names)})")
+    sensors = []
+    for s in rig.sensors:
+        if s.name not in names:
+            continue
+        if isinstance(s, CameraSensor) and cfg.image_scale != 1.0:
+            s = dataclasses.replace(s, camera=s.camera.scaled(cfg.image_scale))
+        if isinstance(s, LidarSensor) and cfg.lidar_azimuth_scale != 1.0:
+            a = max(1, round(s.config.azimuth_samples * cfg.lidar_azimuth_scale))
+            s = dataclasses.replace(s, config=dataclasses.replace(s.config, azimuth_samples=a))
+        sensors.append(s)
+    return dataclasses.replace(rig, sensors=tuple(sensors))
+
+
+def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig) -> str:
+    extra = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
+    if rig is not None:
+        extra["rig"] = hashlib.sha256(json.dumps(rig.to_dict(), sort_keys=True, default=str).encode()).hexdigest()
+    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
+
+
+# ---------------------------------------------------------------------------------- the frames
+def plan_frames(inputs: Inputs, cfg: Config, ctx: RunContext) -> list[dict[str, Any]]:
+    """The frames to render: ``{index, time_s, body_to_world | cam_to_world (+ camera), name}``."""
+    store = ctx.store
+    if inputs.trajectory is not None:
+        arrays = np.load(store.get(inputs.trajectory).file("trajectory.npz"))
+        poses = arrays["robot_pose_se3"]
+        times = arrays["time_s"]
+        if not np.isfinite(poses).all():
+            raise InputError(f"trajectory {inputs.trajectory[:12]}: robot poses contain NaN/inf")
+        idx = list(range(cfg.start, len(times), cfg.tick_stride))
+        frames = [{"index": int(i), "time_s": float(times[i]), "body_to_world": poses[i].tolist()} for i in idx]
+    else:
+        from nsim.io.transforms_json import read_transforms
+
+        art = store.get(inputs.poses)
+        data = read_transforms(art.file("transforms.json"))
+        ids = range(len(data.frames))
+        if cfg.frames == "heldout":
+            scene_json = json.loads(store.get(inputs.scene).file("scene.json").read_text())
+            held = scene_json.get("extra", scene_json).get("eval_images")
+            if held is None:
+                raise InputError(f"scene {inputs.scene[:12]}: scene.json lists no held-out images")
+            ids = held
+        idx = [i for i in ids if i >= cfg.start][:: cfg.tick_stride]
+        frames = []
+        for i in idx:
+            f = data.frames[i]
+            cam = f.camera.scaled(cfg.image_scale) if cfg.image_scale != 1.0 else f.camera
+            frames.append({"index": int(i), "time_s": f.timestamp_s, "name": Path(f.file_path).name,
+                           "cam_to_world": np.asarray(f.cam_to_world).tolist(), "camera": cam.to_dict()})
+    if cfg.max_frames is not None:
+        frames = frames[: cfg.max_frames]
+    if not frames:
+        raise InputError("render: no frames selected (check start / tick_stride / max_frames)")
+    return frames
+
+
+def shards_of(frames: list[dict], cfg: Config) -> list[list[dict]]:
+    return [frames[a : a + cfg.shard_frames] for a in range(0, len(frames), cfg.shard_frames)]
+
+
+def shard_key(key: str, shard: list[dict]) -> str:
+    first, last = shard[0]["index"], shard[-1]["index"]
+    digest = hashlib.sha256(f"{key}:{[f['index'] for f in shard]}".encode()).hexdigest()[:16]
+    return f"shard_{first:06d}_{last:06d}_{digest}"
+
+
+# ---------------------------------------------------------------------------------- the stage
+def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
+    """Render (or find in the run cache). ``engine``: an ``nsim.rendering.engine.EngineConfig``
+    (default: local, in-process); it never changes the result."""
+    from nsim.rendering.engine import EngineConfig, run_shards
+
+    store = ctx.store
+    inputs = resolve_inputs(inputs, ctx)
+    rig = load_rig_for(inputs, cfg)
+    key = action_key(inputs, cfg, ctx, rig)
+    if not ctx.force and (hit := store.lookup(key)) is not None:
+        return Outputs(render=hit.id, cache_hit=True)
+
+    frames = plan_frames(inputs, cfg, ctx)
+    shards = shards_of(frames, cfg)
+    shard_root = store.root / "tmp" / f"{STAGE}.{key[:24]}.shards"
+    shard_root.mkdir(parents=True, exist_ok=True)
+    keys = [shard_key(key, s) for s in shards]
+    present = sum((shard_root / k).is_dir() for k in keys)
+    job = {
+        "workspace": str(store.root),
+        "scene_dir": str(store.get(inputs.scene).path),
+        "human_dirs": [str(store.get(h).path) for h in inputs.humans],
+        "trajectory_file": str(store.get(inputs.trajectory).file("trajectory.npz")) if inputs.trajectory else None,
+        "rig": rig.to_dict() if rig is not None else None,
+        "config": to_dict(cfg),
+        "seed": ctx.seed,
+        "device": str(ctx.device),
+        "shards": shards,
+    }
+    from functools import partial
+
+    factory = partial(ShardRenderer, job)
+    done = run_shards(factory, list(range(len(shards))), shard_root, lambda i: keys[i], engine or EngineConfig(),
+                      progress=ctx.show_progress)
+    with store.publish(kind="render", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
+                       seed=ctx.seed) as out:
+        summary = assemble(out.dir, inputs, cfg, rig, frames, [done[i] for i in range(len(shards))], ctx)
+        out.summary.update(summary)
+    shutil.rmtree(shard_root, ignore_errors=True)
+    return Outputs(render=out.ref, shards_rendered=len(shards) - present, shards_reused=present)
+
+
+def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
+    summary = manifest.get("summary", {})
+    rig_file = summary.get("rig_file")
+    ids = manifest["inputs"]
+    cfg = from_dict(Config, manifest["config"])
+    ctx.force = True
+    inputs = Inputs(trajectory=ids.get("trajectory"), poses=ids.get("poses"), scene=ids.get("scene"),
+                    rig=Path(rig_file) if rig_file else None,
+                    humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")))
+    return run(inputs, cfg, ctx).render
+
+
+# ---------------------------------------------------------------------------------- per-shard rendering
+class ShardRenderer:
+    """Holds the loaded models; renders one shard of frames into a directory (a Ray actor keeps one)."""
+
+    def __init__(self, job: dict[str, Any]) -> None:
+        import torch
+
+        from nsim.rendering.model import load_model
+        from nsim.rendering.occupancy import OccupancyGrid
+
+        self.job = job
+        self.cfg = from_dict(Config, job["config"])
+        self.device = torch.device(job["device"])
+        scene_dir = Path(job["scene_dir"])
+        self.model = load_model(scene_dir, device=self.device).eval()
+        self.grid = OccupancyGrid.load(scene_dir / "occupancy_grid.npy", device=self.device)
+        self.rig = None
+        if job["rig"] is not None:
+            from nsim.sensors.rig import Rig
+
+            self.rig = Rig.from_resolved(job["rig"])
+        self.humans = HumanSet.load(job["human_dirs"], job["trajectory_file"], self.device) if job["human_dirs"] else None
+
+    # -- rays -> samples -> outputs
+    def _render_rays(self, origins: np.ndarray, dirs: np.ndarray, valid: np.ndarray, near: float, far: float,
+                     frame_index: int, camera=None, cam_to_world=None) -> dict[str, np.ndarray]:
+        """Render world rays ``(N, 3)``: rgb (N, 3), range (N,), accumulation (N,), instance (N,)."""
+        import torch
+
+        from nsim.rendering.rays import make_rays
+        from nsim.rendering.renderer import render_rays
+
+        cfg = self.cfg
+        o = torch.as_tensor(np.array(origins, dtype=np.float32), device=self.device)
+        d = torch.as_tensor(np.where(valid[:, None], dirs, [0.0, 0.0, 1.0]), dtype=torch.float32, device=self.device)
+        sc = self.model.sampler_cfg
+        rays = make_rays(o, d, max(near, sc.near_m), min(far, sc.far_m),
+                         self.model.aabb if sc.clip_rays_to_box else None)
+        people = self.humans.visible(frame_index, o, d, camera, cam_to_world, cfg.culling) if self.humans else []
+        if not people:
+            out = render_rays(self.model, rays, "march", self.grid, cfg.march, cfg.chunk_rays)
+            instance = np.zeros(len(o), dtype=np.uint16)
+        else:
+            out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg)
+        r = out.depth_median if cfg.depth_estimate == "median" else out.depth
+        acc = out.accumulation
+        r = torch.where(acc >= cfg.min_accumulation, r, torch.tensor(float("inf"), device=r.device))
+        v = torch.as_tensor(valid, device=r.device)
+        rgb = torch.where(v[:, None], out.rgb.clamp(0.0, 1.0), 0.0)
+        return {"rgb": rgb.cpu().numpy(), "range": torch.where(v, r, float("nan")).cpu().numpy(),
+                "acc": acc.cpu().numpy(), "instance": np.where(valid, instance, 0).astype(np.uint16)}
+
+    def _rng(self, frame_index: int, sensor: str) -> np.random.Generator:
+        digest = hashlib.sha256(f"nsim.render:{self.job['seed']}:{frame_index}:{sensor}".encode()).digest()
+        return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+    def render_shard(self, shard: int, out_dir: Path) -> dict:
+        out_dir = Path(out_dir)
+        stats = []
+        for frame in self.job["shards"][shard]:
+            if self.rig is not None:
+                stats.append(self._render_tick(frame, out_dir))
+            else:
+                stats.append(self._render_pose_frame(frame, out_dir))
+        (out_dir / "frames.json").write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
+        return {"frames": len(stats)}
+
+    def _render_tick(self, frame: dict, out_dir: Path) -> dict:
+        from nsim.sensors.rig import CameraSensor, LidarSensor
+
+        body = np.asarray(frame["body_to_world"], dtype=np.float64)
+        i = frame["index"]
+        row: dict[str, Any] = {"index": i}
+        for s in self.rig.sensors:
+            o, d = s.rays(body)
+            valid = np.isfinite(d).all(-1)
+            if isinstance(s, CameraSensor):
+                res = self._render_rays(o, d, valid, 0.0, float("inf"), i, s.camera, s.world_pose(body))
+                row[s.name] = self._write_camera(out_dir, s.name, i, s, res)
+            elif isinstance(s, LidarSensor):
+                c = s.config
+                res = self._render_rays(o, d, valid, c.min_range_m, c.max_range_m, i)
+                row[s.name] = self._write_lidar(out_dir, s, i, res)
+        return row
+
+    def _render_pose_frame(self, frame: dict, out_dir: Path) -> dict:
+        from nsim.geometry import Camera
+
+        cam = Camera.from_dict(frame["camera"])
+        c2w = np.asarray(frame["cam_to_world"], dtype=np.float64)
+        dirs_cam = cam.pixel_dirs_cam().reshape(-1, 3)
+        valid = np.isfinite(dirs_cam).all(-1)
+        d = np.where(valid[:, None], dirs_cam, [0.0, 0.0, 1.0]) @ c2w[:3, :3].T
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        o = np.broadcast_to(c2w[:3, 3], d.shape)
+        res = self._render_rays(o, d, valid, 0.0, float("inf"), frame["index"], cam, c2w)
+        h, w = cam.height, cam.width
+        i = frame["index"]
+        from nsim.io.exr import write_depth_exr
+        from nsim.io.images import to_uint8, write_image
+
+        (out_dir / "frames" / "rgb").mkdir(parents=True, exist_ok=True)
+        (out_dir / "frames" / "depth").mkdir(parents=True, exist_ok=True)
+        write_image(out_dir / "frames" / "rgb" / f"{i:06d}.png", to_uint8(res["rgb"].reshape(h, w, 3)))
+        z = np.where(dirs_cam[:, 2] > 1e-9, res["range"] * dirs_cam[:, 2], np.nan).reshape(h, w)
+        write_depth_exr(out_dir / "frames" / "depth" / f"{i:06d}.exr", z, attributes={"nsim_depth": DEPTH_ATTRIBUTE["z"]})
+        return {"index": i, "frames": {"mean_accumulation": float(np.mean(res["acc"]))}}
+
+    def _write_camera(self, out_dir: Path, name: str, i: int, s, res: dict) -> dict:
+        from nsim.io.exr import write_depth_exr, write_rgb_exr
+        from nsim.io.images import to_uint8, write_image
+
+        h, w = s.ray_shape
+        info: dict[str, Any] = {}
+        if s.emits_image:
+            rgb = s.expose(res["rgb"].reshape(h, w, 3))
+            (out_dir / name / "rgb").mkdir(parents=True, exist_ok=True)
+            write_image(out_dir / name / "rgb" / f"{i:06d}.png", to_uint8(rgb))
+            if self.cfg.rgb_exr:
+                (out_dir / name / "rgb_linear").mkdir(parents=True, exist_ok=True)
+                lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+                if lin.ndim == 2:
+                    lin = np.repeat(lin[..., None], 3, axis=-1)
+                write_rgb_exr(out_dir / name / "rgb_linear" / f"{i:06d}.exr", lin)
+        if s.emits_depth:
+            rng = self._rng(i, name) if self.cfg.noise else None
+            depth_cfg = s.depth
+            if not self.cfg.noise:
+                depth_cfg = dataclasses.replace(depth_cfg, noise_abs_std_m=0.0, noise_rel_std=0.0)
+            from nsim.sensors.depth import apply_depth_model
+
+            depth = apply_depth_model(s.depth_from_range(np.nan_to_num(res["range"].reshape(h, w), nan=np.inf)),
+                                      depth_cfg, rng)
+            depth = np.where(np.isfinite(res["range"].reshape(h, w)) | np.isinf(res["range"].reshape(h, w)), depth, np.nan)
+            (out_dir / name / "depth").mkdir(parents=True, exist_ok=True)
+            write_depth_exr(out_dir / name / "depth" / f"{i:06d}.exr", depth.astype(np.float32),
+                            attributes={"nsim_depth": DEPTH_ATTRIBUTE[s.depth.kind], "nsim_sensor": name})
+            info["valid_depth_fraction"] = float(np.isfinite(depth).mean())
+        if self.humans is not None:
+            from nsim.io.coco import write_instance_mask
+
+            (out_dir / name / "mask").mkdir(parents=True, exist_ok=True)
+            write_instance_mask(out_dir / name / "mask" / f"{i:06d}.png", res["instance"].reshape(h, w))
+            info["people_px"] = int((res["instance"] > 0).sum())
+        return info
+
+    def _write_lidar(self, out_dir: Path, s, i: int, res: dict) -> dict:
+        from nsim.io.lidar_exr import write_lidar_exr, write_lidar_ply
+
+        c, a = s.ray_shape
+        exact = np.nan_to_num(res["range"].reshape(c, a), nan=np.inf)
+        if self.cfg.noise:
+            ranges = s.measure(exact, self._rng(i, s.name))
+        else:
+            ok = np.isfinite(exact) & (exact >= s.config.min_range_m) & (exact <= s.config.max_range_m)
+            ranges = np.where(ok, exact, np.inf).astype(np.float32)
+        intensity = np.where(np.isfinite(ranges), res["acc"].reshape(c, a), 0.0).astype(np.float32)
+        scan = s.scan(ranges, intensity)
+        (out_dir / s.name / "scan").mkdir(parents=True, exist_ok=True)
+        write_lidar_exr(out_dir / s.name / "scan" / f"{i:06d}.exr", scan, sensor=s.name, elevations_deg=s.elevations_deg)
+        write_lidar_ply(out_dir / s.name / "scan" / f"{i:06d}.ply", scan)
+        return {"returns": int(np.isfinite(ranges).sum())}
+
+
+# ---------------------------------------------------------------------------------- humans
+class HumanSet:
+    """The trajectory's people, each drawn by a human checkpoint (person k uses checkpoint k mod M)."""
+
+    def __init__(self, models: list, arrays: dict[str, np.ndarray], device) -> None:
+        self.models = models
+        self.arrays = arrays
+        self.device = device
+        self._loops: dict[tuple[str, float], Any] = {}
+
+    @classmethod
+    def load(cls, human_dirs: list[str], trajectory_file: str | None, device) -> HumanSet:
+        from nsim.human.nerf import load_human
+
+        if trajectory_file is None:
+            raise InputError("render: human checkpoints need a trajectory (people come from nsim simulate)")
+        arrays = dict(np.load(trajectory_file, allow_pickle=False))
+        return cls([load_human(d, device=device) for d in human_dirs], arrays, device)
+
+    def _loop(self, motion: str, height: float):
+        from nsim.human.gait import DEFAULT_CLIPS, default_clip
+        from nsim.human.motion import LocomotionLoop
+
+        key = (motion, round(height, 3))
+        if key not in self._loops:
+            name = motion if motion in DEFAULT_CLIPS else "walk"
+            self._loops[key] = LocomotionLoop.from_clip(default_clip(name, height))
+        return self._loops[key]
+
+    def joint_transforms(self, tick: int) -> list[tuple[int, np.ndarray]]:
+        """``[(person k, joint_transforms (J, 4, 4))]`` at a tick, for people still in the run."""
+        from nsim.human.skeleton import forward_kinematics
+
+        a = self.arrays
+        out = []
+        for k in range(a["position_m"].shape[1]):
+            pos = a["position_m"][tick, k]
+            if not np.isfinite(pos).all():
+                continue
+            height = float(a["height_m"][k])
+            motion = str(a["motion"][k]) if "motion" in a else "walk"
+            loop = self._loop(motion, height)
+            root, quats = loop.pose_at(np.array([a["gait_phase"][tick, k]]), pos[None], np.array([a["heading_rad"][tick, k]]))
+            T = forward_kinematics(loop.skeleton, quats[0], root[0])
+            out.append((k, T))
+        return out
+
+    def visible(self, tick: int, origins, dirs, camera, cam_to_world, culling: bool) -> list[dict]:
+        """People whose posed box the rays can see, with the ray mask to cast their samples on."""
+        import torch
+
+        from nsim.human.skeleton import pose_obb
+        from nsim.rendering.culling import OrientedBox, camera_box_bounds, lidar_ray_box_mask
+
+        people = []
+        for k, T in self.joint_transforms(tick):
+            model = self.models[k % len(self.models)]
+            box_to_world, lo, hi = pose_obb(model.skeleton, T)
+            box = OrientedBox.from_min_max(lo, hi, box_to_world)
+            o = origins.cpu().numpy().astype(np.float64)
+            d = dirs.cpu().numpy().astype(np.float64)
+            hit = lidar_ray_box_mask(o, d, box)  # exact ray-box test for every ray
+            if culling and camera is not None and cam_to_world is not None:
+                bounds = camera_box_bounds(camera, np.linalg.inv(cam_to_world), box)
+                if bounds is None:
+                    continue
+                u0, v0, u1, v1 = bounds
+                h, w = camera.height, camera.width
+                uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+                inside = ((uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)).reshape(-1)
+                mask = inside & hit
+            else:
+                mask = hit
+            if culling and not mask.any():
+                continue
+            people.append({"k": k, "T": T, "model": model, "mask": torch.as_tensor(mask if culling else np.ones_like(mask))})
+        return people
+
+    def composite(self, scene_model, grid, rays, people: list[dict], cfg: Config):
+        """Scene samples + every person's samples on its rays, merged in depth order; one volume
+        rendering over both. Returns (RenderOutput, instance ids (N,) uint16)."""
+        import torch
+
+        from nsim.rendering.model import RaySamples, composite
+        from nsim.rendering.renderer import render_rays
+
+        n = len(rays)
+        scene_out = render_rays(scene_model, rays, "march", grid, cfg.march, cfg.chunk_rays, return_samples=True)
+        any_mask = torch.zeros(n, dtype=torch.bool)
+        for p in people:
+            any_mask |= p["mask"]
+        idx = torch.nonzero(any_mask, as_tuple=True)[0]
+        out = scene_out
+        instance = np.zeros(n, dtype=np.uint16)
+        if len(idx):
+            sub = rays[idx]
+            parts = [scene_out.samples]
+            parts = [RaySamples(*(getattr(scene_out.samples, f)[idx] for f in ("t_starts", "t_ends", "sigma", "rgb")))]
+            owners = [torch.zeros_like(parts[0].sigma, dtype=torch.long)]
+            for p in people:
+                m = p["mask"][idx]
+                hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
+                                               sub.near, sub.far)
+                sig = torch.where(m[:, None], hs.sigma, 0.0)
+                parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
+                owners.append(torch.full_like(sig, p["k"] + 1, dtype=torch.long))
+            merged = RaySamples(*(torch.cat([getattr(q, f) for q in parts], dim=1)
+                                  for f in ("t_starts", "t_ends", "sigma", "rgb")))
+            comp = composite(merged, scene_model.background)
+            owner = torch.cat(owners, dim=1)
+            order = torch.argsort(merged.t_starts, dim=-1, stable=True)
+            owner = torch.gather(owner, -1, order)
+            # instance: the person holding the most weight on the ray, if they hold more than half
+            per = torch.zeros(len(idx), len(people) + 1)
+            for j, p in enumerate(people):
+                per[:, j + 1] = (comp.weights * (owner == p["k"] + 1)).sum(-1)
+            best = per.argmax(-1)
+            strong = per.max(-1).values > 0.5
+            ids = torch.tensor([0] + [p["k"] + 1 for p in people])[best]
+            instance[idx.numpy()] = torch.where(strong, ids, 0).numpy().astype(np.uint16)
+            for f in ("rgb", "depth", "depth_median", "accumulation"):
+                getattr(out, f)[idx] = getattr(comp, f)
+        return out, instance
+
+
+# ---------------------------------------------------------------------------------- assembling the artifact
+def assemble(out_dir: Path, inputs: Inputs, cfg: Config, rig, frames: list[dict], shard_dirs: list[Path],
+             ctx: RunContext) -> dict[str, Any]:
+    """Hard-link every shard's files into the artifact, then write the frame-level files."""
+    rows: list[dict] = []
+    for sd in shard_dirs:
+        for src in sorted(Path(sd).rglob("*")):
+            if src.is_file() and src.name != "frames.json":
+                dst = out_dir / src.relative_to(sd)
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                try:
+                    os.link(src, dst)
+                except OSError:
+                    shutil.copyfile(src, dst)
+        rows += json.loads((Path(sd) / "frames.json").read_text())
+    meta: dict[str, Any] = {
+        "mode": "trajectory" if inputs.trajectory else "poses",
+        "scene": inputs.scene,
+        "frames": [{k: f[k] for k in ("index", "time_s", "name") if k in f} for f in frames],
+        "conventions": {
+            "world": "metres, z up",
+            "camera": "OpenCV axes (x right, y down, z forward)",
+            "lidar": "x forward, y left, z up; rows = beams (ring 0 lowest), columns = azimuth",
+            "body": "x forward, y left, z up",
+            "rgb": "8-bit sRGB PNG",
+            "depth": "float32 EXR channel Z, metres; see the nsim_depth header attribute",
+        },
+        "per_frame": rows,
+    }
+    summary: dict[str, Any] = {"mode": meta["mode"], "frames": len(frames), "humans": len(inputs.humans)}
+    if rig is not None:
+        from nsim.io.transforms_json import Frame, TransformsData, write_transforms
+        from nsim.io.tum import Trajectory, write_tum
+        from nsim.sensors.rig import CameraSensor
+
+        (out_dir / "rig.json").write_text(json.dumps(rig.to_dict(), indent=1, sort_keys=True, default=str) + "\n")
+        body = np.stack([np.asarray(f["body_to_world"]) for f in frames])
+        times = np.array([f["time_s"] for f in frames])
+        write_tum(out_dir / "robot.tum", Trajectory.from_poses(times, body))
+        (out_dir / "cameras").mkdir()
+        for s in rig.sensors:
+            if isinstance(s, CameraSensor):
+                tf = [Frame(file_path=f"{s.name}/rgb/{f['index']:06d}.png", cam_to_world=s.world_pose(b), camera=s.camera,
+                            timestamp_s=f["time_s"]) for f, b in zip(frames, body, strict=True)]
+                write_transforms(out_dir / "cameras" / f"{s.name}.json", TransformsData(frames=tf))
+        meta["sensors"] = [{"name": s.name, "type": s.type} for s in rig.sensors]
+        summary["sensors"] = [s.name for s in rig.sensors]
+        summary["rig"] = rig.name
+        summary["rig_file"] = str(inputs.rig)
+        if inputs.humans:
+            from nsim.io.coco import coco_from_mask_files, write_coco_json
+
+            for s in rig.sensors:
+                if isinstance(s, CameraSensor):
+                    masks = sorted((out_dir / s.name / "mask").glob("*.png"))
+                    write_coco_json(out_dir / s.name / "boxes.json",
+                                    coco_from_mask_files(masks, [f"{s.name}/rgb/{m.name}" for m in masks]))
+    (out_dir / "render.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
+    write_previews(out_dir, rig, frames, cfg)
+    return summary
+
+
+def _bev(scan_path: Path, size: int = 240, extent_m: float = 10.0) -> np.ndarray:
+    from nsim.io.lidar_exr import read_lidar_exr
+
+    scan = read_lidar_exr(scan_path)
+    img = np.full((size, size, 3), 16, np.uint8)
+    xyz = scan.xyz_m[scan.hit]
+    u = (size / 2 - xyz[:, 1] / extent_m * size / 2).astype(int)
+    v = (size / 2 - xyz[:, 0] / extent_m * size / 2).astype(int)
+    ok = (u >= 0) & (u < size) & (v >= 0) & (v < size)
+    z = np.clip((xyz[ok, 2] + 1.0) / 3.0, 0, 1)
+    img[v[ok], u[ok]] = np.stack([255 * z, 255 * (1 - abs(z - 0.5) * 2), 255 * (1 - z)], -1).astype(np.uint8)
+    img[size // 2 - 2 : size // 2 + 2, size // 2 - 2 : size // 2 + 2] = (255, 255, 255)
+    return img
+
+
+def _frame_strip(out_dir: Path, rig, index: int, height: int = 160) -> np.ndarray:
+    import cv2
+
+    from nsim.io.images import read_image
+
+    tiles = []
+    names = [s.name for s in rig.sensors if s.type == "camera"] if rig is not None else ["frames"]
+    for name in names:
+        p = out_dir / name / "rgb" / f"{index:06d}.png"
+        if p.is_file():
+            im = read_image(p)
+            if im.ndim == 2:
+                im = np.repeat(im[..., None], 3, -1)
+            tiles.append(cv2.resize(im, (max(1, round(im.shape[1] * height / im.shape[0])), height),
+                                    interpolation=cv2.INTER_AREA))
+    if rig is not None:
+        for s in rig.sensors:
+            p = out_dir / s.name / "scan" / f"{index:06d}.exr"
+            if s.type == "lidar" and p.is_file():
+                tiles.append(cv2.resize(_bev(p), (height, height), interpolation=cv2.INTER_NEAREST))
+    return np.concatenate(tiles, axis=1) if tiles else np.zeros((height, height, 3), np.uint8)
+
+
+def write_previews(out_dir: Path, rig, frames: list[dict], cfg: Config) -> None:
+    from nsim.io.images import write_image
+
+    (out_dir / "preview").mkdir()
+    picked = frames[:: cfg.preview_every][: cfg.preview_max_rows]
+    strips = [_frame_strip(out_dir, rig, f["index"]) for f in picked]
+    width = max(s.shape[1] for s in strips)
+    sheet = np.concatenate([np.pad(s, ((0, 2), (0, width - s.shape[1]), (0, 0))) for s in strips], axis=0)
+    write_image(out_dir / "preview" / "contact_sheet.png", sheet)
+    if cfg.video and len(frames) > 1:
+        import cv2
+
+        first = _frame_strip(out_dir, rig, frames[0]["index"])
+        h, w = first.shape[:2]
+        path = out_dir / "preview" / "preview.mp4"
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), cfg.video_fps, (w, h))
+        try:
+            for f in frames:
+                strip = first if f is frames[0] else _frame_strip(out_dir, rig, f["index"])
+                if strip.shape[:2] != (h, w):
+                    strip = cv2.resize(strip, (w, h))
+                writer.write(cv2.cvtColor(strip, cv2.COLOR_RGB2BGR))
+        finally:
+            writer.release()
+
+
+# ---------------------------------------------------------------------------------- ROS 2 bag export
+def export_rosbag(art_dir: Path, bag_path: Path, storage: str = "sqlite3") -> Path:
+    """Write a trajectory-mode render artifact as a ROS 2 bag (images, depth, camera info, point
+    clouds, tf / tf_static, odometry) with ``rosbags``; the bag is written whole or not at all."""
+    from nsim.io.exr import read_depth_exr
+    from nsim.io.images import read_image
+    from nsim.io.lidar_exr import read_lidar_exr
+    from nsim.io.rosbag import BagWriter
+    from nsim.io.tum import read_tum
+    from nsim.sensors.rig import Rig
+
+    art_dir = Path(art_dir)
+    meta = json.loads((art_dir / "render.json").read_text())
+    if meta["mode"] != "trajectory":
+        raise InputError(f"render {art_dir.name[:12]}: only trajectory renders (a robot's run) export to a ROS bag")
+    rig = Rig.from_resolved(json.loads((art_dir / "rig.json").read_text()))
+    robot = read_tum(art_dir / "robot.tum")
+    poses = robot.poses_se3()
+    with BagWriter(bag_path, rig, storage=storage) as bag:
+        for f, pose in zip(meta["frames"], poses, strict=True):
+            i = f["index"]
+            images, depths, clouds = {}, {}, {}
+            for s in rig.sensors:
+                if s.type == "lidar":
+                    clouds[s.name] = read_lidar_exr(art_dir / s.name / "scan" / f"{i:06d}.exr")
+                    continue
+                if (p := art_dir / s.name / "rgb" / f"{i:06d}.png").is_file():
+                    images[s.name] = read_image(p)
+                if (p := art_dir / s.name / "depth" / f"{i:06d}.exr").is_file():
+                    depths[s.name] = read_depth_exr(p)
+            bag.write_tick(float(f["time_s"]), pose, images=images, depths=depths, clouds=clouds)
+    return Path(bag_path)
