@@ -8,26 +8,24 @@ For later stages::
     view = render_camera(model, camera, cam_to_world, method="march", grid=grid, return_samples=True)
 """
 
-from nsim.rendering.model import (
-    RaySamples,
-    RenderOutput,
-    SamplerConfig,
-    SceneModel,
-    composite,
-    load_model,
-    save_model,
-)
-from nsim.rendering.occupancy import ObstacleMap, OccupancyGrid, obstacle_map
-from nsim.rendering.rays import PoseRefinement, Rays, make_rays, se3_exp
-from nsim.rendering.renderer import (
-    MarchConfig,
-    RenderedView,
-    camera_rays,
-    march,
-    render_camera,
-    render_lidar,
-    render_rays,
-)
+import importlib
+
+# name -> submodule; imported on first use, so that torch-free parts (engine, culling) stay light
+_EXPORTS = {
+    "RaySamples": "model", "RenderOutput": "model", "SamplerConfig": "model", "SceneModel": "model",
+    "composite": "model", "load_model": "model", "save_model": "model",
+    "ObstacleMap": "occupancy", "OccupancyGrid": "occupancy", "obstacle_map": "occupancy",
+    "PoseRefinement": "rays", "Rays": "rays", "make_rays": "rays", "se3_exp": "rays",
+    "MarchConfig": "renderer", "RenderedView": "renderer", "camera_rays": "renderer", "march": "renderer",
+    "render_camera": "renderer", "render_lidar": "renderer", "render_rays": "renderer",
+}
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"nsim.rendering.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module 'nsim.rendering' has no attribute {name!r}")
+
 
 __all__ = [
     "MarchConfig",
