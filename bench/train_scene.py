@@ -158,14 +158,18 @@ def reconstructed_data(ws: Path, cap_dir: Path, quick: bool) -> SceneData:
     ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
     out = reconstruct.run(reconstruct.Inputs(capture=cap_id, reference=cap_dir / "gt_trajectory.tum"), cfg, ctx)
     data = SceneData.load(store.get(out.poses).path)
+    data.source_id = out.poses
     cap = SceneData.load(cap_dir)
     by_name = {Path(nm).name: dp for nm, dp in zip(cap.names, cap.depth_paths, strict=True)}
     data.depth_paths = [by_name.get(Path(nm).name) for nm in data.names]
     return data
 
 
-def bench_one(label: str, data: SceneData, cfg: TrainSceneConfig, oracle, args, work: Path) -> dict:
-    """Train on ``data``, score held-out and off-path views, time the renderers; print a table."""
+def bench_one(label: str, data: SceneData, cfg: TrainSceneConfig, oracle, args, work: Path, ws: Path) -> dict:
+    """Train on ``data``, score held-out and off-path views, time the renderers; print a table.
+
+    The trained model is also published to the workspace as the ``train_scene`` stage would
+    (same action key) and tagged ``scene/bench-<label>``, so ``bench/render.py --workspace`` reuses it."""
     held = [int(i) for i in data.split(cfg.data.holdout_every)[1]]
     views = _spread(held, args.eval_views)
     every = max(1, cfg.optim.steps // max(1, args.evals))
@@ -185,6 +189,13 @@ def bench_one(label: str, data: SceneData, cfg: TrainSceneConfig, oracle, args, 
     result = train_scene(data, cfg, work, device="cpu", seed=0, on_log=on_log)
     wall_s = time.perf_counter() - t_wall
     trainer = result.trainer
+    from nsim.stages import train_scene as stage
+
+    ctx = RunContext(store=Store(ws), device_spec="cpu", seed=0, progress=False)
+    inputs = stage.Inputs(poses=data.source_id)
+    scene_id = stage.publish(ctx, stage.action_key(inputs, cfg, ctx), inputs, cfg,
+                             ctx.store.get(data.source_id).kind, data, result)
+    ctx.store.set_ref(f"scene/bench-{label.split()[0]}", scene_id)
     final = trainer.evaluate(held)["mean"]
     curve.append({"step": trainer.step, "seconds": trainer.train_seconds, **final})
     baseline = constant_color_psnr(data, cfg.data.holdout_every)
@@ -236,7 +247,8 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], help="config override key=value (repeatable)")
     ap.add_argument("--poses", choices=("gt", "reconstruct", "both"), default=None,
                     help="ground-truth poses, poses from nsim reconstruct, or both (default: both; gt with --quick)")
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default 2; 1 with --quick, whose tiny "
+                    "batches gain nothing from a second thread)")
     ap.add_argument("--evals", type=int, default=None, help="evaluations during training (default 8, 2 with --quick)")
     ap.add_argument("--eval-views", type=int, default=4, help="held-out views per evaluation during training")
     ap.add_argument("--off-path-views", type=int, default=4)
@@ -245,6 +257,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "out" / "train_scene.png")
     args = ap.parse_args()
     preset = args.preset or ("tiny" if args.quick else "cpu")
+    args.threads = args.threads or (1 if args.quick else 2)
     poses_mode = args.poses or ("gt" if args.quick else "both")
     args.evals = args.evals if args.evals is not None else (2 if args.quick else 8)
     args.speed_rays = args.speed_rays or (1024 if args.quick else 4096)
@@ -260,13 +273,15 @@ def main() -> None:
         cap_dir = make_capture(ws, args.quick)
         oracle = RoomOracle(RoomSpec.from_dict(json.loads((cap_dir / "room.json").read_text())["spec"]))
         if poses_mode in ("gt", "both"):
-            results["gt"] = bench_one("gt poses", SceneData.load(cap_dir), cfg, oracle, args, Path(tmp) / "work_gt")
+            data = SceneData.load(cap_dir)
+            data.source_id = next(a.id for a in Store(ws).artifacts() if a.path == cap_dir)
+            results["gt"] = bench_one("gt poses", data, cfg, oracle, args, Path(tmp) / "work_gt", ws)
         if poses_mode in ("reconstruct", "both"):
             t0 = time.perf_counter()
             data = reconstructed_data(ws, cap_dir, args.quick)
             rec_s = time.perf_counter() - t0
             results["reconstruct"] = {"reconstruct_seconds": round(rec_s, 1),
-                                      **bench_one("reconstructed poses", data, cfg, oracle, args, Path(tmp) / "work_rec")}
+                                      **bench_one("reconstructed poses", data, cfg, oracle, args, Path(tmp) / "work_rec", ws)}
 
     title = f"train_scene preset={preset}, {args.threads} threads"
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -20,7 +20,7 @@ from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.stages import capture, reconstruct, simulate, train_scene  # noqa: E402
+from nsim.stages import capture, reconstruct, render, simulate, train_scene  # noqa: E402
 from nsim.workspace.store import Store, default_root  # noqa: E402
 
 
@@ -59,12 +59,19 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     ts_inputs = train_scene.Inputs(poses=out.poses)
     out = step("train-scene", lambda: train_scene.run(ts_inputs, ts_cfg, ctx))
     ctx.store.set_ref("scene/demo", out.scene)
+    scene_id = out.scene
 
     repo = Path(__file__).resolve().parents[1]
     sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)
     scenario = load_scenario(repo / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
     out = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx))
     ctx.store.set_ref("trajectory/demo-spot-run", out.trajectory)
+
+    # Spot's five fisheye cameras (with depth) and its LiDAR along the run, in the trained scene.
+    ren_cfg = load_config(render.Config, stage="render", preset="tiny" if preset == "tiny" else "cpu")
+    ren_inputs = render.Inputs(trajectory=out.trajectory, scene=scene_id, rig=repo / "configs" / "robots" / "spot.yaml")
+    out = step("render (spot rig)", lambda: render.run(ren_inputs, ren_cfg, ctx))
+    ctx.store.set_ref("render/demo-spot-run", out.render)
 
 
 def main() -> int:

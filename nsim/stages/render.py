@@ -77,6 +77,9 @@ class Config:
     image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow)")
     lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep")
     shard_frames: int = param(8, ge=1, help="frames per shard (the unit of resume and of distribution)")
+    method: str = param("proposal", choices=("proposal", "march"),
+                        help="march: constant steps with the occupancy grid and early termination; proposal: "
+                             "the proposal sampler the model trained with (fewer samples, faster on CPU)")
     march: MarchConfig = MarchConfig(step_m=0.01)
     chunk_rays: int = param(16384, ge=256)
     depth_estimate: str = param("median", choices=("median", "expected"),
@@ -336,7 +339,7 @@ class ShardRenderer:
                          self.model.aabb if sc.clip_rays_to_box else None)
         people = self.humans.visible(frame_index, o, d, camera, cam_to_world, cfg.culling) if self.humans else []
         if not people:
-            out = render_rays(self.model, rays, "march", self.grid, cfg.march, cfg.chunk_rays)
+            out = render_rays(self.model, rays, cfg.method, self.grid, cfg.march, cfg.chunk_rays)
             instance = np.zeros(len(o), dtype=np.uint16)
         else:
             out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg)
@@ -547,7 +550,7 @@ class HumanSet:
         from nsim.rendering.renderer import render_rays
 
         n = len(rays)
-        scene_out = render_rays(scene_model, rays, "march", grid, cfg.march, cfg.chunk_rays, return_samples=True)
+        scene_out = render_rays(scene_model, rays, cfg.method, grid, cfg.march, cfg.chunk_rays, return_samples=True)
         any_mask = torch.zeros(n, dtype=torch.bool)
         for p in people:
             any_mask |= p["mask"]

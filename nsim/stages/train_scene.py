@@ -78,8 +78,10 @@ def resume_dir(ctx: RunContext, key: str):
     return ctx.store.root / "tmp" / f"{STAGE}.{key[:24]}.resume"
 
 
-def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
-    from nsim.train.scene import SceneData, export_scene, train_scene
+def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
+    """Train (or resume, or find in the run cache). ``on_log(trainer, stats)``: called every
+    ``output.log_every`` steps (benchmarks evaluate there; it must not change the trainer)."""
+    from nsim.train.scene import SceneData, train_scene
 
     store = ctx.store
     src = store.get(store.resolve(inputs.poses))
@@ -94,25 +96,33 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     data = SceneData.load(src.path)
     device = ctx.device
     work = resume_dir(ctx, key)
-    result = train_scene(data, cfg, work, device=device, seed=ctx.seed, progress=ctx.show_progress)
-    with store.publish(kind="scene-checkpoint", stage=STAGE, version=VERSION, key=key, config=cfg,
-                       inputs=inputs.ids(), seed=ctx.seed) as out:
+    result = train_scene(data, cfg, work, device=device, seed=ctx.seed, progress=ctx.show_progress, on_log=on_log)
+    scene_id = publish(ctx, key, inputs, cfg, src.kind, data, result)
+    shutil.rmtree(work, ignore_errors=True)
+    return Outputs(scene=scene_id, train_seconds=result.trainer.train_seconds, resumed_from=result.resumed_from)
+
+
+def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind: str, data, result) -> str:
+    """Export a finished training (``nsim.train.scene.TrainResult``) as the artifact of ``key``."""
+    from nsim.train.scene import export_scene
+
+    with ctx.store.publish(kind="scene-checkpoint", stage=STAGE, version=VERSION, key=key, config=cfg,
+                           inputs=inputs.ids(), seed=ctx.seed) as out:
         summary = export_scene(out.dir, result)
         out.summary.update({
-            "source_kind": src.kind,
+            "source_kind": source_kind,
             "frames": data.n_frames,
             "train_frames": int(len(result.trainer.train_ids)),
             "eval_frames": int(len(result.trainer.eval_ids)),
             "image_size": [int(data.size_hw[1]), int(data.size_hw[0])],
-            "device": device_kind(device),
+            "device": device_kind(str(result.trainer.device)),
             "hash_backend": result.trainer.backend,
             **summary,
         })
         out.timing["train_seconds"] = round(result.trainer.train_seconds, 2)
         if result.resumed_from is not None:
             out.timing["resumed_from_step"] = result.resumed_from
-    shutil.rmtree(work, ignore_errors=True)
-    return Outputs(scene=out.ref, train_seconds=result.trainer.train_seconds, resumed_from=result.resumed_from)
+    return out.ref
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:

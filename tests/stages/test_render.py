@@ -124,7 +124,8 @@ def test_poses_mode_renders_the_frames_cameras(world):
     from nsim.rendering.renderer import MarchConfig, render_camera
 
     assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--poses", "capture/t", "--scene", "scene/t",
-                 "--preset", "tiny", "--set", "max_frames=2", "--set", "image_scale=1.0", "--tag", "render/poses"]) == 0
+                 "--preset", "tiny", "--set", "max_frames=2", "--set", "image_scale=1.0", "--set", "method=march",
+                 "--tag", "render/poses"]) == 0
     art = world.get(world.resolve("render/poses"))
     cap = world.get(world.resolve("capture/t"))
     scene = world.get(world.resolve("scene/t"))
@@ -134,7 +135,7 @@ def test_poses_mode_renders_the_frames_cameras(world):
     model = load_model(scene.path)
     grid = OccupancyGrid.load(scene.path / "occupancy_grid.npy")
     cfg = json.loads(art.file("manifest.json").read_text())["config"]
-    view = render_camera(model, frame.camera, frame.cam_to_world, method="march", grid=grid,
+    view = render_camera(model, frame.camera, frame.cam_to_world, method=cfg["method"], grid=grid,
                          march_cfg=MarchConfig(**cfg["march"]))
     assert np.array_equal(read_image(art.file("frames/rgb/000010.png")), to_uint8(view.rgb))
     pred = read_depth_exr(art.file("frames/depth/000010.exr"))
