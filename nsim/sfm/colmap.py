@@ -21,6 +21,20 @@ Loop detection (sequential matching) needs a visual vocabulary. COLMAP would dow
 instead a small one is built from the sequence's own descriptors (``VisualIndex.build``),
 which needs no network and suits one room.
 
+Far pairs. For ordered frames (``matcher="sequential"``) the pairs further apart in the
+sequence than ``overlap`` (loop closures and the quadratic-overlap pairs) are where repeated
+textures fool two-view verification: in the kitchen test room the two opposite faces of the
+island carry the same texture, frames on opposite sides of the room matched with up to 665
+"inliers" each, and the mapper, seeded among those frames, placed 19 of 150 frames rotated by
+180 deg (median rotation error 17 deg after the fit). A wrong pair cannot be told from a right
+one by its own inliers, only by its disagreement with everything else. So, before mapping, the
+near pairs alone (which a video makes reliable) are mapped once, and every far pair whose
+images both lie in one of those models is checked against it: a far pair is dropped from the
+database when most of its inlier matches do not reproject onto the matched keypoint
+(``FAR_PAIR_*``). Drift over a room-sized loop is far below that tolerance, so true loop
+closures stay and then correct that drift in the final mapping. The check costs one extra
+mapping of the near pairs (phase ``far_pair_check``).
+
 Determinism. Every RANSAC and the mapper get ``options.seed``; with
 ``options.deterministic`` (the default) mapping, bundle adjustment and loop retrieval run on
 one thread, because Ceres' multi-threaded reductions are not bit-for-bit repeatable. Feature
@@ -66,7 +80,7 @@ log = logging.getLogger(__name__)
 CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
 MATCHERS = ("sequential", "exhaustive")
 DEVICES = ("cpu", "cuda")
-PHASES = ("features", "matching", "mapping", "bundle_adjustment")
+PHASES = ("features", "matching", "far_pair_check", "mapping", "bundle_adjustment")
 #: Horizontal fields of view tried in turn for the initial focal length when intrinsics are unknown.
 DEFAULT_HFOV_GUESSES_DEG = {
     "SIMPLE_RADIAL": (65.0, 45.0, 90.0),
@@ -78,6 +92,14 @@ FISHEYE_MODELS = ("OPENCV_FISHEYE",)
 #: RANSAC trial cap of two-view verification (COLMAP's 10000 made loop-closure candidates, which
 #: often have low inlier ratios, take 4x longer to verify than all sequential pairs together).
 VERIFY_MAX_RANSAC_TRIALS = 2000
+#: Far-pair check (see ``_check_far_pairs``): a match agrees with the near-pairs model when its
+#: 3D point reprojects within this fraction of max(width, height) of the matched keypoint (8 px at
+#: 320x240; true loop closures of the test room agree to 1-2 px, false ones are off by ~100 px) ...
+FAR_PAIR_MAX_ERROR_FRACTION = 0.025
+#: ... and a far pair is dropped when fewer than this fraction of its checkable matches agree ...
+FAR_PAIR_MIN_AGREEING = 0.5
+#: ... unless fewer than this many of its matches have a 3D point in that model (then it is kept).
+FAR_PAIR_MIN_CHECKABLE = 10
 #: A frame whose pose differs this much from both temporal neighbours (which agree) is rejected.
 JUMP_MIN_ROTATION_DEG = 30.0
 JUMP_MIN_STEPS = 10.0
@@ -147,6 +169,8 @@ class SfmStats:
 
     unregistered: every input image without a pose; rejected: those among them that COLMAP
     registered but whose pose jumped away from their neighbours (see ``_reject_pose_jumps``).
+    far_pairs_checked / far_pairs_dropped: far image pairs checked against the near-pairs model
+    and those dropped as disagreeing with it (see the module docstring), summed over attempts.
     """
 
     images_given: int
@@ -160,6 +184,8 @@ class SfmStats:
     attempts: tuple[dict[str, Any], ...]
     device: str
     phase_wall_s: dict[str, float]
+    far_pairs_checked: int = 0
+    far_pairs_dropped: int = 0
 
     @property
     def registered_fraction(self) -> float:
@@ -419,20 +445,112 @@ def _mapper_options(options: SfmOptions, refine_intrinsics: bool) -> pycolmap.In
     return opts
 
 
-def _map_once(db_path: Path, image_dir: Path, out_dir: Path, names: list[str], options: SfmOptions,
-              refine_intrinsics: bool, on_image: Callable[[], None] | None) -> tuple[pycolmap.Reconstruction | None, int]:
-    """One incremental mapping run; returns (largest model or None, number of models)."""
+def _incremental_mapping(db_path: Path, image_dir: Path, out_dir: Path, names: list[str], options: SfmOptions,
+                         refine_intrinsics: bool,
+                         on_image: Callable[[], None] | None) -> dict[int, pycolmap.Reconstruction]:
+    """One incremental mapping run; returns every model COLMAP made."""
     if out_dir.exists():
         shutil.rmtree(out_dir)
     out_dir.mkdir(parents=True)
     opts = _mapper_options(options, refine_intrinsics)
     opts.image_names = names
-    models = pycolmap.incremental_mapping(db_path, image_dir, out_dir, options=opts,
-                                          next_image_callback=on_image)
+    return pycolmap.incremental_mapping(db_path, image_dir, out_dir, options=opts, next_image_callback=on_image)
+
+
+def _map_once(db_path: Path, image_dir: Path, out_dir: Path, names: list[str], options: SfmOptions,
+              refine_intrinsics: bool, on_image: Callable[[], None] | None) -> tuple[pycolmap.Reconstruction | None, int]:
+    """One incremental mapping run; returns (largest model or None, number of models)."""
+    models = _incremental_mapping(db_path, image_dir, out_dir, names, options, refine_intrinsics, on_image)
     if not models:
         return None, 0
     best = max(sorted(models), key=lambda k: (models[k].num_reg_images(), -k))
     return models[best], len(models)
+
+
+def _check_far_pairs(db_path: Path, image_dir: Path, out_dir: Path, names: list[str], options: SfmOptions,
+                     refine_intrinsics: bool) -> tuple[int, int]:
+    """Drop far pairs that disagree with a model of the near pairs; returns (checked, dropped).
+
+    Near pairs are at most ``options.overlap`` apart in ``names`` (time) order; every other
+    verified pair is far. The near pairs of a copy of the database are mapped, and a far pair
+    whose two images lie in one of the models is checked: each inlier match with a 3D point
+    (from the first image's keypoint, else the second's) is projected into the other image,
+    and the pair's two-view geometry is deleted from ``db_path`` when fewer than
+    ``FAR_PAIR_MIN_AGREEING`` of them land within ``FAR_PAIR_MAX_ERROR_FRACTION * max(W, H)``
+    of the matched keypoint. Pairs that cannot be checked (an image outside every model, or
+    fewer than ``FAR_PAIR_MIN_CHECKABLE`` matches with a 3D point) are kept.
+    """
+    position = {name: k for k, name in enumerate(names)}
+    db = pycolmap.Database.open(db_path)
+    try:
+        image_name = {im.image_id: im.name for im in db.read_all_images()}
+        pair_ids, geometries = db.read_two_view_geometries()
+    finally:
+        db.close()
+    far = []
+    for pair_id, geometry in zip(pair_ids, geometries, strict=True):
+        a, b = pycolmap.pair_id_to_image_pair(pair_id)
+        if abs(position[image_name[a]] - position[image_name[b]]) > options.overlap and len(geometry.inlier_matches):
+            far.append((a, b, np.asarray(geometry.inlier_matches)))
+    if not far:
+        return 0, 0
+    near_db = out_dir / "near.db"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(db_path, near_db)
+    db = pycolmap.Database.open(near_db)
+    try:
+        for a, b, _ in far:
+            db.delete_two_view_geometry(a, b)
+    finally:
+        db.close()
+    models = _incremental_mapping(near_db, image_dir, out_dir / "models", names, options, refine_intrinsics, None)
+    views = {}  # image id -> (model index, world_to_cam (4, 4), Camera, keypoints (K, 2) OpenCV px, point3D ids (K,))
+    points = {}
+    for k in sorted(models):
+        rec = models[k]
+        points[k] = rec.points3D
+        for image in rec.images.values():
+            if image.has_pose and image.image_id not in views:
+                w2c = np.eye(4)
+                w2c[:3, :] = image.cam_from_world().matrix()
+                p2d = image.points2D
+                xy = np.array([p.xy for p in p2d], dtype=np.float64).reshape(-1, 2) - 0.5
+                ids = np.array([p.point3D_id if p.has_point3D() else -1 for p in p2d], dtype=np.int64)
+                views[image.image_id] = (k, w2c, camera_from_colmap(image.camera), xy, ids)
+    checked, drop = 0, []
+    for a, b, matches in far:
+        if a not in views or b not in views or views[a][0] != views[b][0]:
+            continue
+        k = views[a][0]
+        pid_a, pid_b = views[a][4][matches[:, 0]], views[b][4][matches[:, 1]]
+        use_a = pid_a >= 0
+        has = use_a | (pid_b >= 0)
+        if has.sum() < FAR_PAIR_MIN_CHECKABLE:
+            continue
+        checked += 1
+        agree = 0
+        # a's 3D point projected into b where a's keypoint has one, else b's point into a
+        for sel, pids, target, column in ((use_a, pid_a, views[b], 1), (has & ~use_a, pid_b, views[a], 0)):
+            if not sel.any():
+                continue
+            _, w2c, cam, xy, _ = target
+            xyz = np.array([points[k][int(i)].xyz for i in pids[sel]], dtype=np.float64)
+            uv, valid = cam.project(xyz @ w2c[:3, :3].T + w2c[:3, 3])
+            tol = FAR_PAIR_MAX_ERROR_FRACTION * max(cam.width, cam.height)
+            close = np.linalg.norm(uv - xy[matches[sel, column]], axis=1) < tol
+            agree += int(np.sum(np.asarray(valid) & close))
+        if agree < FAR_PAIR_MIN_AGREEING * has.sum():
+            drop.append((a, b))
+    if drop:
+        db = pycolmap.Database.open(db_path)
+        try:
+            for a, b in drop:
+                db.delete_two_view_geometry(a, b)
+        finally:
+            db.close()
+    log.info("far-pair check: %d of %d far pairs checked against %d near-pairs model(s); %d disagreed and were dropped",
+             checked, len(far), len(models), len(drop))
+    return checked, len(drop)
 
 
 def _reject_pose_jumps(rec: pycolmap.Reconstruction, names: list[str]) -> list[str]:
@@ -641,11 +759,22 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
         registered[0] += 1
         report("mapping", min(registered[0], n), n)
 
+    far_checked = far_dropped = 0
+    check_far = options.matcher == "sequential"
     for k, guess in enumerate(guesses):
+        reverified = k == 0
         if k > 0:
             # Perspective pairs were verified without a focal prior: only fisheye needs re-verifying.
-            _set_cameras(db_path, camera_for(guess), reverify=model in FISHEYE_MODELS, seed=options.seed,
+            reverified = model in FISHEYE_MODELS
+            _set_cameras(db_path, camera_for(guess), reverify=reverified, seed=options.seed,
                          num_threads=options.num_threads)
+        if check_far and reverified:
+            t_check = time.perf_counter()
+            report("far_pair_check", 0, 1)
+            checked, dropped = _check_far_pairs(db_path, image_dir, work_dir / f"near{k}", names, options, refine)
+            report("far_pair_check", 1, 1)
+            far_checked, far_dropped = far_checked + checked, far_dropped + dropped
+            wall["far_pair_check"] = wall.get("far_pair_check", 0.0) + time.perf_counter() - t_check
         registered[0] = 0
         report("mapping", 0, n)
         rec, n_models = _map_once(db_path, image_dir, work_dir / f"attempt{k}", names, options, refine, on_image)
@@ -660,7 +789,7 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
     rec, n_models = best
     # Sequential matching means ordered frames: a pose that jumps away from both neighbours is wrong.
     rejected = _reject_pose_jumps(rec, names) if rec is not None and options.matcher == "sequential" else []
-    wall["mapping"] = time.perf_counter() - t
+    wall["mapping"] = time.perf_counter() - t - wall.get("far_pair_check", 0.0)
     n_reg = rec.num_reg_images() if rec is not None else 0
     if n_reg < max(options.min_registered_fraction * n, 2) or rec is None:
         raise InputError(
@@ -678,11 +807,12 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
     model_dir.mkdir()
     rec.write(model_dir)
     return _result(rec, names, n_models, attempts, "cuda" if device == pycolmap.Device.cuda else "cpu", wall,
-                   rejected)
+                   rejected, (far_checked, far_dropped))
 
 
 def _result(rec: pycolmap.Reconstruction, names: list[str], n_models: int, attempts: list[dict[str, Any]],
-            device: str, wall: dict[str, float], rejected: list[str] = ()) -> SfmResult:
+            device: str, wall: dict[str, float], rejected: list[str] = (),
+            far_pairs: tuple[int, int] = (0, 0)) -> SfmResult:
     cam_to_world, cameras = {}, {}
     for image in rec.images.values():
         if not image.has_pose:
@@ -709,6 +839,8 @@ def _result(rec: pycolmap.Reconstruction, names: list[str], n_models: int, attem
         attempts=tuple(attempts),
         device=device,
         phase_wall_s={k: round(v, 3) for k, v in wall.items()},
+        far_pairs_checked=far_pairs[0],
+        far_pairs_dropped=far_pairs[1],
     )
     return SfmResult(rec, tuple(names), cam_to_world, cameras, xyz, rgb, err, track, stats)
 

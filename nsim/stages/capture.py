@@ -49,6 +49,9 @@ class Config:
     fps: float = param(10.0, gt=0.0, le=240.0)
     supersample: int = param(2, ge=1, le=8, help="sub-pixel rays per axis for anti-aliasing")
     video: bool = True
+    low_pass_height_m: float | None = param(
+        0.6, ge=0.55, le=1.5,
+        help="camera height of the second, low loop (Spot's body cameras: 0.5-0.7 m); null: both loops at eye height")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +76,16 @@ def make_camera(cfg: Config):
     return Camera.fisheye_spot_like(cfg.width, cfg.height)
 
 
+def path_config(cfg: Config):
+    """The handheld path: eye-height loop, then a low loop at ``cfg.low_pass_height_m`` (or a second eye-height one)."""
+    from nsim.synth.path import DEFAULT_PATH
+
+    if cfg.low_pass_height_m is None:
+        return dataclasses.replace(DEFAULT_PATH, low_height_m=DEFAULT_PATH.eye_height_m,
+                                   low_pitch_down_deg=DEFAULT_PATH.eye_pitch_down_deg)
+    return dataclasses.replace(DEFAULT_PATH, low_height_m=cfg.low_pass_height_m)
+
+
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
     key = store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed)
@@ -85,7 +98,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     spec = make_room(cfg.room, cfg.room_seed)
     camera = make_camera(cfg)
-    cam_to_world = handheld_path(spec, cfg.n_frames, seed=ctx.seed)  # (N, 4, 4) OpenCV axes
+    cam_to_world = handheld_path(spec, cfg.n_frames, seed=ctx.seed, cfg=path_config(cfg))  # (N, 4, 4) OpenCV axes
     times_s = timestamps_s(cfg.n_frames, cfg.fps)
     oracle = RoomOracle(spec)
 

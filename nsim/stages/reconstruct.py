@@ -39,7 +39,7 @@ from nsim.errors import InputError
 from nsim.progress import progress_bar
 
 STAGE = "reconstruct"
-VERSION = 1
+VERSION = 2
 CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
 MATCHERS = ("sequential", "exhaustive")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")

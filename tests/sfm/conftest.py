@@ -38,9 +38,15 @@ def pinhole_capture(tmp_path_factory) -> Capture:
 
 
 @pytest.fixture(scope="session")
-def pinhole_sfm(pinhole_capture, tmp_path_factory) -> SfmResult:
+def pinhole_sfm_dir(tmp_path_factory) -> Path:
+    """The work folder of ``pinhole_sfm`` (its COLMAP database.db stays there)."""
+    return tmp_path_factory.mktemp("sfm_pinhole")
+
+
+@pytest.fixture(scope="session")
+def pinhole_sfm(pinhole_capture, pinhole_sfm_dir) -> SfmResult:
     """SIMPLE_RADIAL, unknown intrinsics, sequential matching with loop detection."""
-    return run_sfm(pinhole_capture.image_dir, tmp_path_factory.mktemp("sfm_pinhole"), SfmOptions())
+    return run_sfm(pinhole_capture.image_dir, pinhole_sfm_dir, SfmOptions())
 
 
 @pytest.fixture(scope="session")

@@ -77,7 +77,9 @@ def test_reconstructs_the_box_room(pinhole_sfm, pinhole_capture):
     assert stats.images_given == len(pinhole_capture.names)
     assert 0.0 < stats.mean_reprojection_error_px < 1.0
     assert stats.mean_track_length > 2.0 and stats.num_points3d == len(pinhole_sfm.points_xyz) > 500
-    assert set(stats.phase_wall_s) == {"features", "matching", "mapping", "bundle_adjustment", "total"}
+    assert set(stats.phase_wall_s) == {"features", "matching", "far_pair_check", "mapping", "bundle_adjustment",
+                                       "total"}
+    assert stats.far_pairs_checked > 0 and stats.far_pairs_dropped <= 0.1 * stats.far_pairs_checked
     _check_accuracy(pinhole_sfm, pinhole_capture, 0.5, 0.01)
     cam = pinhole_sfm.cameras[pinhole_sfm.registered_names[0]]
     assert cam.model == "OPENCV" and cam.fx == pytest.approx(pinhole_capture.camera.fx, rel=0.03)
@@ -199,6 +201,36 @@ def test_a_pose_that_jumps_away_from_its_neighbours_is_rejected(pinhole_sfm):
     assert _reject_pose_jumps(rec, names) == [names[10]]
     assert not rec.find_image_with_name(names[10]).has_pose
     assert rec.num_reg_images() == len(names) - 1
+
+
+def test_a_far_pair_that_disagrees_with_the_near_pairs_is_dropped(pinhole_capture, pinhole_sfm, pinhole_sfm_dir,
+                                                                   tmp_path):
+    """A false loop closure (as repeated textures make) is removed; the true far pairs stay."""
+    from nsim.sfm.colmap import _check_far_pairs
+
+    shutil.copyfile(pinhole_sfm_dir / "database.db", tmp_path / "database.db")
+    names = pinhole_capture.names
+    db = pycolmap.Database.open(tmp_path / "database.db")
+    ids = {im.name: im.image_id for im in db.read_all_images()}
+    # forge a far pair with many "inliers": frame 0's keypoints matched to arbitrary ones of a far frame
+    near = db.read_two_view_geometry(ids[names[0]], ids[names[1]])
+    far_name = next(n for n in names[12:] if not db.exists_two_view_geometry(ids[names[0]], ids[n]))
+    fake = pycolmap.TwoViewGeometry()
+    fake.config = near.config
+    matches = np.asarray(near.inlier_matches).copy()
+    matches[:, 1] = (matches[:, 1] * 7 + 3) % db.num_keypoints_for_image(ids[far_name])
+    fake.inlier_matches = matches
+    db.write_two_view_geometry(ids[names[0]], ids[far_name], fake)
+    db.close()
+
+    checked, dropped = _check_far_pairs(tmp_path / "database.db", pinhole_capture.image_dir, tmp_path / "near",
+                                        names, SfmOptions(), refine_intrinsics=True)
+    # the fixture's database lost its own disagreeing pairs already; the rest agree again
+    assert checked == pinhole_sfm.stats.far_pairs_checked - pinhole_sfm.stats.far_pairs_dropped + 1
+    assert dropped == 1
+    db = pycolmap.Database.open(tmp_path / "database.db")
+    assert not db.exists_two_view_geometry(ids[names[0]], ids[far_name])
+    db.close()
 
 
 @pytest.mark.skipif(pycolmap.has_cuda, reason="pycolmap has CUDA here: nothing to fall back from")

@@ -103,3 +103,18 @@ def test_every_room_and_camera_publishes(run_cli, tmp_path, room, camera):
     depth = read_depth_exr(art.path / data.frames[0].depth_file_path)
     finite = np.isfinite(depth)
     assert finite.mean() > 0.6 and (depth[finite] > 0).all() and depth[finite].max() < 20.0
+
+
+def test_default_capture_has_a_low_pass(tiny_capture):
+    """Both presets film a loop at eye height and one at about 0.6 m (Spot's camera height)."""
+    from nsim.config import load_config
+    from nsim.stages.capture import Config, path_config
+
+    for preset in ("default", "tiny"):
+        assert load_config(Config, stage="capture", preset=preset).low_pass_height_m == pytest.approx(0.6)
+    _, art = tiny_capture
+    heights = read_tum(art.path / "gt_trajectory.tum").positions_xyz[:, 2]
+    assert heights.min() < 0.65 and heights.max() > 1.45
+    flat = path_config(Config(low_pass_height_m=None))
+    assert flat.low_height_m == flat.eye_height_m and flat.low_pitch_down_deg == flat.eye_pitch_down_deg
+    assert path_config(Config(low_pass_height_m=0.7)).low_height_m == 0.7
