@@ -16,6 +16,11 @@ Artifact layout::
     room.json                the room specification (rebuilds the oracle)
     occupancy.json           2D obstacle polygons (walls + furniture footprints), metres
     preview.png              contact sheet and top-down view of the path over the room
+
+With ``actor: true`` (``nsim capture synth --actor``) a person walks through the room and the
+handheld camera follows it instead (``nsim.synth.actor_capture``; ``low_pass_height_m`` unused);
+the artifact also holds ``masks/`` (person mask, 0/255), ``background/`` (the views without the
+person) and ``poses.json`` (per-frame skeleton poses, docs/human_data.md); its depth includes the person.
 """
 
 from __future__ import annotations
@@ -52,6 +57,10 @@ class Config:
     low_pass_height_m: float | None = param(
         0.6, ge=0.55, le=1.5,
         help="camera height of the second, low loop (Spot's body cameras: 0.5-0.7 m); null: both loops at eye height")
+    actor: bool = param(False, help="a person walks through the room, filmed by a camera that follows it "
+                                    "(adds masks/ and poses.json: training data for train-human)")
+    actor_height_m: float = param(1.75, ge=0.5, le=2.5, help="the person's height (actor: true)")
+    actor_speed_mps: float = param(1.2, ge=0.3, le=2.5, help="the person's walking speed (actor: true)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,11 +95,31 @@ def path_config(cfg: Config):
     return dataclasses.replace(DEFAULT_PATH, low_height_m=cfg.low_pass_height_m)
 
 
+def actor_config(cfg: Config):
+    """The ``ActorCaptureConfig`` of a capture with a person (``cfg.actor``)."""
+    from nsim.synth.actor_capture import ActorCaptureConfig
+
+    return ActorCaptureConfig(
+        room=cfg.room, room_seed=cfg.room_seed, camera=cfg.camera, width=cfg.width, height=cfg.height,
+        hfov_deg=cfg.hfov_deg, n_frames=cfg.n_frames, fps=cfg.fps, supersample=cfg.supersample, video=cfg.video,
+        actor_height_m=cfg.actor_height_m, actor_speed_mps=cfg.actor_speed_mps,
+    )
+
+
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
     key = store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(capture=hit.id, cache_hit=True)
+    if cfg.actor:
+        from nsim.synth.actor_capture import render_actor_capture
+
+        with store.publish(kind="capture", stage=STAGE, version=VERSION, key=key, config=cfg, seed=ctx.seed) as out:
+            result = render_actor_capture(out.dir, actor_config(cfg), seed=ctx.seed, show_progress=ctx.show_progress)
+            out.summary.update({"room": cfg.room, "camera": cfg.camera, "frames": cfg.n_frames,
+                                "resolution": [cfg.width, cfg.height], "actor": True,
+                                "frames_with_person": int((result.mask_fraction > 0).sum())})
+        return Outputs(capture=out.ref)
 
     from nsim.synth.oracle import RoomOracle
     from nsim.synth.path import handheld_path, timestamps_s
