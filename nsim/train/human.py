@@ -1,0 +1,691 @@
+"""Training the human NeRF: data, ray sampling, compositing over the background, checkpoints, evaluation.
+
+Input: a :class:`HumanTrainData` in memory — frames of one person with their camera poses,
+the person's skeleton pose in every frame (``joint_transforms``, from
+``nsim.human.skeleton.forward_kinematics``) and person masks — filled by the human-capture
+loader or, in tests, by ray casting ``nsim.synth.actor.Actor``.
+
+Background. The person is composited over what is behind them, in this order of preference:
+the trained scene NeRF (``background_model``, a ``SceneModel``: its samples along each ray
+are merged with the person's in depth order, so furniture in front of the person occludes
+them), the frames' known background (``HumanTrainData.background``: a colour or images), or,
+without either, the frame itself (exact outside the person; inside, the mask loss drives the
+person opaque, so the background there is hidden).
+
+Rays: each batch draws ``data.inside_fraction`` of its rays from pixels inside the person's
+dilated mask and the rest from pixels inside the posed body box but outside the dilated mask
+(rays outside the box carry no human samples and teach nothing). Loss: mean squared error of
+the composite + ``mask_weight`` times the mean squared error of the person's visible opacity
+against the mask.
+
+Split: frame ``i`` is held out when ``i % holdout_every == holdout_every // 2`` or when it is
+in the last ``holdout_last_fraction`` of the frames (a held-out part of the motion: poses the
+model never saw). Evaluation on held-out frames: PSNR inside the person's 2D box (the ground
+truth mask's bounding box grown by ``output.box_margin_px``) and mask IoU (opacity > 0.5 vs
+the mask), against two trivial predictions: the box filled with the mean person colour of the
+training frames (``psnr_box_baseline``) and the background alone (``psnr_box_background``).
+
+Determinism and resume are the scene trainer's (``nsim.train.scene``): every random draw of
+step ``k`` comes from generators seeded with ``(seed, k)``, learning rates are functions of
+``k``, and a checkpoint (``work_dir/last.pt``) holds the step, weights and Adam moments, so a
+killed run resumed from its last checkpoint ends bit-identical (CPU) to an uninterrupted one.
+
+Core API (what a ``train_human`` stage calls)::
+
+    data = HumanTrainData(images, cam_to_world, camera, joint_transforms, masks, skeleton)
+    result = train_human(data, cfg, work_dir, device=ctx.device, seed=ctx.seed,
+                         background_model=scene_model_or_None)
+    summary = export_human(out.dir, result)   # weights, skeleton, box, previews, eval.json
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from nsim.config import config_digest, param, to_dict
+from nsim.errors import InputError
+from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
+from nsim.human.skeleton import Skeleton, pose_aabb
+from nsim.rendering.model import RaySamples
+from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = 1
+CHECKPOINT_NAME = "last.pt"
+
+
+# ====================================================================== configuration
+@dataclass(frozen=True)
+class HumanOptimConfig:
+    """Steps, batch and Adam with an exponentially decaying learning rate (from ``lr_*`` to
+    ``lr_* * lr_final_factor``). ``lr_blend = 0`` freezes the skinning weights (cheaper).
+    ``num_threads``: torch CPU threads (0 leaves torch's default)."""
+
+    steps: int = param(3000, ge=1)
+    rays_per_batch: int = param(1024, ge=1)
+    lr_field: float = param(1e-2, gt=0.0, help="the canonical field's encoding (hash table)")
+    lr_mlp: float = param(1e-2, gt=0.0, help="the canonical field's MLPs")
+    lr_blend: float = param(1e-3, ge=0.0)
+    lr_nonrigid: float = param(1e-3, ge=0.0)
+    lr_final_factor: float = param(0.1, gt=0.0, le=1.0)
+    warmup_steps: int = param(0, ge=0)
+    adam_eps: float = param(1e-15, gt=0.0)
+    num_threads: int = param(2, ge=0, le=256)
+
+
+@dataclass(frozen=True)
+class HumanLossConfig:
+    """Loss weights: ``mask_weight`` (opacity vs mask, MSE), ``blend_weight`` (keeps the learned
+    skinning log-weights near their bone-distance initialisation, mean squared difference)."""
+
+    mask_weight: float = param(0.5, ge=0.0)
+    blend_weight: float = param(1e-3, ge=0.0)
+
+
+@dataclass(frozen=True)
+class HumanDataConfig:
+    """Split and ray sampling (see the module docstring)."""
+
+    holdout_every: int = param(8, ge=0, help="hold out frame i when i % holdout_every == holdout_every // 2 (0: none)")
+    holdout_last_fraction: float = param(0.0, ge=0.0, lt=1.0, help="also hold out this last part of the frames")
+    inside_fraction: float = param(0.8, ge=0.0, le=1.0, help="share of rays drawn inside the dilated mask")
+    mask_dilation_px: int = param(2, ge=0, le=64)
+    near_m: float = param(0.05, ge=0.0)
+
+
+@dataclass(frozen=True)
+class HumanOutputConfig:
+    """Logging, checkpoints, evaluation and previews."""
+
+    log_every: int = param(100, ge=1)
+    checkpoint_every: int = param(500, ge=1)
+    eval_views: int = param(0, ge=0, help="held-out views scored at the end (0: all)")
+    box_margin_px: int = param(2, ge=0)
+    render_chunk_rays: int = param(8192, ge=1)
+    preview_views: int = param(8, ge=1, le=64, help="turntable views")
+    preview_width: int = param(96, ge=8)
+    preview_height: int = param(128, ge=8)
+    gait_frames: int = param(16, ge=2, le=256)
+    gait_fps: float = param(12.0, gt=0.0)
+
+
+@dataclass(frozen=True)
+class TrainHumanConfig:
+    model: HumanModelConfig = HumanModelConfig()
+    optim: HumanOptimConfig = HumanOptimConfig()
+    loss: HumanLossConfig = HumanLossConfig()
+    data: HumanDataConfig = HumanDataConfig()
+    output: HumanOutputConfig = HumanOutputConfig()
+
+
+# ====================================================================== data
+@dataclass(eq=False)
+class HumanTrainData:
+    """Frames of one person, in memory.
+
+    images: (N, H, W, 3) uint8; cam_to_world: (N, 4, 4) OpenCV axes; camera: the intrinsics
+    (``nsim.geometry.cameras.Camera``, W x H); joint_transforms: (N, J, 4, 4) joint-to-world of
+    ``skeleton`` in each frame; masks: (N, H, W) bool, the person's pixels; background: None,
+    an RGB colour (3,) in [0, 1], or (N, H, W, 3) uint8 images of what is behind the person;
+    names: per-frame labels (default ``frame_00000`` ...). ``digest`` (of all of it) is
+    computed on construction when not given.
+    """
+
+    images: np.ndarray
+    cam_to_world: np.ndarray
+    camera: Any
+    joint_transforms: np.ndarray
+    masks: np.ndarray
+    skeleton: Skeleton
+    background: np.ndarray | None = None
+    names: list[str] | None = None
+    digest: str = ""
+
+    def __post_init__(self) -> None:
+        self.images = np.asarray(self.images)
+        self.cam_to_world = np.asarray(self.cam_to_world, dtype=np.float64)
+        self.joint_transforms = np.asarray(self.joint_transforms, dtype=np.float64)
+        self.masks = np.asarray(self.masks, dtype=bool)
+        n = self.images.shape[0]
+        h, w = self.camera.height, self.camera.width
+        J = self.skeleton.num_joints
+        if self.images.dtype != np.uint8 or self.images.shape != (n, h, w, 3):
+            raise InputError(f"human data: images: expected ({n}, {h}, {w}, 3) uint8 (the camera is {w}x{h}), "
+                             f"got {self.images.shape} {self.images.dtype}")
+        for name, arr, shape in (("cam_to_world", self.cam_to_world, (n, 4, 4)),
+                                 ("joint_transforms", self.joint_transforms, (n, J, 4, 4)),
+                                 ("masks", self.masks, (n, h, w))):
+            if arr.shape != shape:
+                raise InputError(f"human data: {name}: expected {shape} for {n} frames, got {arr.shape}")
+        if n < 2:
+            raise InputError(f"human data: need at least 2 frames, got {n}")
+        if self.background is not None:
+            bg = np.asarray(self.background)
+            if bg.shape == (3,):
+                bg = bg.astype(np.float32)
+                if not np.all((bg >= 0) & (bg <= 1)):
+                    raise InputError(f"human data: background colour must be in [0, 1], got {bg.tolist()}")
+            elif bg.shape != (n, h, w, 3) or bg.dtype != np.uint8:
+                raise InputError(f"human data: background: expected (3,) colour or ({n}, {h}, {w}, 3) uint8, got "
+                                 f"{bg.shape} {bg.dtype}")
+            self.background = bg
+        if self.names is None:
+            self.names = [f"frame_{i:05d}" for i in range(n)]
+        if not self.digest:
+            hsh = hashlib.sha256()
+            for arr in (self.images, self.cam_to_world, self.joint_transforms, self.masks,
+                        self.skeleton.offsets_m, self.skeleton.parents):
+                hsh.update(np.ascontiguousarray(arr).tobytes())
+            hsh.update(json.dumps(self.camera.to_dict(), sort_keys=True).encode())
+            if self.background is not None:
+                hsh.update(np.ascontiguousarray(self.background).tobytes())
+            self.digest = hsh.hexdigest()
+
+    @property
+    def n_frames(self) -> int:
+        return self.images.shape[0]
+
+    @property
+    def size_hw(self) -> tuple[int, int]:
+        return self.images.shape[1], self.images.shape[2]
+
+    def split(self, cfg: HumanDataConfig) -> tuple[np.ndarray, np.ndarray]:
+        """(train indices, held-out indices); see the module docstring."""
+        idx = np.arange(self.n_frames)
+        held = np.zeros(self.n_frames, dtype=bool)
+        if cfg.holdout_every > 0:
+            held |= idx % cfg.holdout_every == cfg.holdout_every // 2
+        if cfg.holdout_last_fraction > 0:
+            held |= idx >= self.n_frames - int(round(cfg.holdout_last_fraction * self.n_frames))
+        if held.all():
+            raise InputError("human data: the hold-out settings leave no training frames")
+        return idx[~held], idx[held]
+
+    def background_pixels(self, frames: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+        """Known background colours ``(n, 3)`` float32 at pixels (frames, v, u), or None."""
+        if self.background is None:
+            return None
+        if self.background.shape == (3,):
+            return np.broadcast_to(self.background, (len(frames), 3)).astype(np.float32)
+        return self.background[frames, v, u].astype(np.float32) / 255.0
+
+
+def _dilate(mask: np.ndarray, px: int) -> np.ndarray:
+    if px <= 0:
+        return mask.copy()
+    import cv2
+
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * px + 1, 2 * px + 1))
+    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
+
+
+def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
+    digest = hashlib.sha256(f"nsim.train.human:{purpose}:{seed}:{step}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+def _module_digest(module: torch.nn.Module | None) -> str:
+    if module is None:
+        return ""
+    h = hashlib.sha256()
+    for k, v in module.state_dict().items():
+        h.update(k.encode())
+        h.update(v.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+# ====================================================================== the trainer
+@dataclass
+class StepStats:
+    step: int
+    loss: float
+    psnr: float
+    seconds: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+class HumanTrainer:
+    """One training run's state: model, optimiser, step; ``train_step`` advances it by one."""
+
+    def __init__(self, data: HumanTrainData, cfg: TrainHumanConfig, device: str = "cpu", seed: int = 0,
+                 background_model=None) -> None:
+        self.data, self.cfg, self.device, self.seed = data, cfg, torch.device(device), int(seed)
+        if cfg.optim.num_threads > 0 and self.device.type == "cpu":
+            torch.set_num_threads(cfg.optim.num_threads)
+        self.train_ids, self.eval_ids = data.split(cfg.data)
+        init = torch.Generator().manual_seed(_step_seed(seed, 0, "init"))
+        self.model = HumanModel(cfg.model, data.skeleton, generator=init).to(self.device)
+        self.blend_init = self.model.blend_log_weights.detach().clone()
+        self.background_model = background_model.to(self.device).eval() if background_model is not None else None
+        if self.background_model is not None:
+            for p in self.background_model.parameters():
+                p.requires_grad_(False)
+        self.images = torch.as_tensor(data.images).to(self.device)
+        self.masks = torch.as_tensor(data.masks).to(self.device)
+        self.dirs_cam = camera_dirs(data.camera, self.device)  # (H, W, 3)
+        self.cam_to_world = torch.as_tensor(data.cam_to_world, dtype=torch.float32, device=self.device)
+        self.joint_transforms = torch.as_tensor(data.joint_transforms, dtype=torch.float32, device=self.device)
+        self.bg_images = None
+        self.bg_colour = None
+        if data.background is not None and data.background.shape == (3,):
+            self.bg_colour = torch.as_tensor(data.background, dtype=torch.float32, device=self.device)
+        elif data.background is not None:
+            self.bg_images = torch.as_tensor(data.background).to(self.device)
+        self._build_pools()
+        o = cfg.optim
+        f = self.model.field
+        encoding = list(f.encoding.parameters()) if f.encoding is not None else []
+        groups = [{"params": list(f.density_mlp.parameters()) + list(f.color_mlp.parameters()), "lr": o.lr_mlp,
+                   "name": "mlp"}]
+        if encoding:
+            groups.append({"params": encoding, "lr": o.lr_field, "name": "encoding"})
+        if o.lr_blend > 0:
+            groups.append({"params": [self.model.blend_log_weights], "lr": o.lr_blend, "name": "blend"})
+        else:
+            self.model.blend_log_weights.requires_grad_(False)
+        if self.model.nonrigid is not None:
+            if o.lr_nonrigid > 0:
+                groups.append({"params": list(self.model.nonrigid.parameters()), "lr": o.lr_nonrigid, "name": "nonrigid"})
+            else:
+                self.model.nonrigid.requires_grad_(False)
+        self.base_lr = [g["lr"] for g in groups]
+        self.optimizer = torch.optim.Adam(groups, eps=o.adam_eps, fused=self.device.type in ("cpu", "cuda"))
+        self.step = 0
+        self.train_seconds = 0.0
+        self.history: list[dict[str, float]] = []
+
+    # ------------------------------------------------------------------ ray pools
+    def _build_pools(self) -> None:
+        """Per training frame, the flat pixel indices inside the dilated mask and those inside the
+        posed box but outside the dilated mask (the box's own pixels if that is empty)."""
+        h, w = self.data.size_hw
+        inside, outside = [], []
+        dirs_cam = self.dirs_cam.reshape(-1, 3)
+        for i in self.train_ids:
+            dil = torch.as_tensor(_dilate(self.data.masks[i], self.cfg.data.mask_dilation_px)).reshape(-1)
+            origins, dirs = rays_from_pixels(dirs_cam, self.cam_to_world[i].expand(h * w, 4, 4))
+            box = self.model.posed_box(self.joint_transforms[i])[0]
+            rays = make_rays(origins, dirs, self.cfg.data.near_m, 1e4, box)
+            in_box = (rays.far > rays.near + 2e-4).cpu()
+            pin = torch.nonzero(dil)[:, 0]
+            pout = torch.nonzero(in_box & ~dil)[:, 0]
+            if pin.numel() == 0:
+                pin = torch.nonzero(in_box)[:, 0] if in_box.any() else torch.arange(h * w)
+            if pout.numel() == 0:
+                pout = pin
+            inside.append(pin)
+            outside.append(pout)
+        self.pools = [self._pack(inside), self._pack(outside)]
+
+    @staticmethod
+    def _pack(lists: list[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+        counts = torch.tensor([len(x) for x in lists])
+        offsets = torch.cumsum(counts, 0) - counts
+        return torch.cat(lists), offsets, counts
+
+    # ------------------------------------------------------------------ schedules and batches
+    def lr_scale(self, step: int) -> float:
+        o = self.cfg.optim
+        decay = o.lr_final_factor ** min(1.0, step / max(1, o.steps))
+        warm = min(1.0, (step + 1) / o.warmup_steps) if o.warmup_steps > 0 else 1.0
+        return decay * warm
+
+    def batch(self, step: int) -> tuple[Tensor, Tensor, Tensor, torch.Generator]:
+        """Frame index ``(B,)`` (into the data), pixel rows ``v`` and columns ``u`` of ``step``'s
+        rays: a pure function of ``(seed, step)``; and the step's generator."""
+        g = torch.Generator().manual_seed(_step_seed(self.seed, step))
+        b = self.cfg.optim.rays_per_batch
+        n_in = int(round(self.cfg.data.inside_fraction * b))
+        picks = []
+        for pool, count in ((self.pools[0], n_in), (self.pools[1], b - n_in)):
+            flat, offsets, counts = pool
+            k = torch.randint(0, len(self.train_ids), (count,), generator=g)
+            r = torch.rand(count, generator=g, dtype=torch.float64)
+            j = offsets[k] + (r * counts[k]).long().clamp(max=counts[k] - 1)
+            picks.append((k, flat[j]))
+        k = torch.cat([p[0] for p in picks])
+        pix = torch.cat([p[1] for p in picks])
+        w = self.data.size_hw[1]
+        frames = torch.as_tensor(self.train_ids)[k]
+        return frames.to(self.device), (pix // w).to(self.device), (pix % w).to(self.device), g
+
+    # ------------------------------------------------------------------ rendering
+    def _background(self, frames: Tensor, v: Tensor, u: Tensor) -> Tensor:
+        """Per-ray background colour ``(B, 3)`` when there is no scene model."""
+        if self.bg_colour is not None:
+            return self.bg_colour.expand(frames.shape[0], 3)
+        if self.bg_images is not None:
+            return self.bg_images[frames, v, u].float() / 255.0
+        return self.images[frames, v, u].float() / 255.0
+
+    def _scene_samples(self, origins: Tensor, dirs: Tensor) -> RaySamples:
+        s = self.background_model.sampler_cfg
+        rays = make_rays(origins, dirs, s.near_m, s.far_m, self.background_model.aabb if s.clip_rays_to_box else None)
+        with torch.no_grad():
+            return self.background_model.render_proposal(rays, return_samples=True).samples
+
+    def render_rays(self, frames: Tensor, v: Tensor, u: Tensor, generator: torch.Generator | None = None):
+        """Composite of the person over the background for pixels ``(frames, v, u)``: a
+        ``MergedRender`` whose ``alpha[0]`` is the person's visible opacity."""
+        c2w = self.cam_to_world[frames]
+        origins, dirs = rays_from_pixels(self.dirs_cam[v, u], c2w)
+        human = self.model.render_samples(origins, dirs, self.joint_transforms, near=self.cfg.data.near_m,
+                                          generator=generator, pose_index=frames)
+        if self.background_model is not None:
+            scene = self._scene_samples(origins, dirs)
+            return render_merged(human, scene, background_rgb=self.background_model.background)
+        return render_merged(human, background_rgb=self._background(frames, v, u))
+
+    # ------------------------------------------------------------------ one step
+    def train_step(self) -> StepStats:
+        t0 = time.perf_counter()
+        step = self.step
+        cfg = self.cfg
+        scale = self.lr_scale(step)
+        for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
+            group["lr"] = base * scale
+        self.model.train()
+        frames, v, u, g = self.batch(step)
+        out = self.render_rays(frames, v, u, generator=g)
+        target = self.images[frames, v, u].float() / 255.0
+        mask = self.masks[frames, v, u].float()
+        mse = torch.mean((out.rgb - target) ** 2)
+        mask_loss = torch.mean((out.alpha[0] - mask) ** 2)
+        loss = mse + cfg.loss.mask_weight * mask_loss
+        extra = {"mask": float(mask_loss.detach())}
+        if cfg.loss.blend_weight > 0 and self.model.blend_log_weights.requires_grad:
+            reg = torch.mean((self.model.blend_log_weights - self.blend_init) ** 2)
+            loss = loss + cfg.loss.blend_weight * reg
+            extra["blend"] = float(reg.detach())
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.step += 1
+        dt = time.perf_counter() - t0
+        self.train_seconds += dt
+        mse_f = float(mse.detach())
+        return StepStats(self.step, float(loss.detach()), -10.0 * math.log10(max(mse_f, 1e-12)), dt, extra)
+
+    # ------------------------------------------------------------------ checkpoints
+    def meta(self) -> dict[str, Any]:
+        return {"config": config_digest(self.cfg), "data": self.data.digest, "seed": self.seed,
+                "device": self.device.type, "background_model": _module_digest(self.background_model)}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"format": CHECKPOINT_FORMAT, "meta": self.meta(), "step": self.step,
+                "train_seconds": self.train_seconds, "model": self.model.state_dict(),
+                "optimizer": self.optimizer.state_dict(), "history": self.history}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise InputError(f"checkpoint format {state.get('format')} is not {CHECKPOINT_FORMAT}")
+        if state["meta"] != self.meta():
+            raise InputError("checkpoint was made by another run (config, data, seed, device or background differ)")
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.step = int(state["step"])
+        self.train_seconds = float(state["train_seconds"])
+        self.history = list(state["history"])
+
+    def save_checkpoint(self, path: Path) -> None:
+        """Atomically write the full training state to ``path``."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            torch.save(self.state_dict(), f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    def load_checkpoint(self, path: Path) -> None:
+        self.load_state_dict(torch.load(path, map_location=self.device, weights_only=False))
+
+    # ------------------------------------------------------------------ evaluation
+    @torch.no_grad()
+    def render_view(self, i: int) -> dict[str, np.ndarray]:
+        """Frame ``i`` rendered at its camera and pose over its background: rgb (H, W, 3), alpha (H, W)."""
+        self.model.eval()
+        h, w = self.data.size_hw
+        vv, uu = torch.meshgrid(torch.arange(h, device=self.device), torch.arange(w, device=self.device), indexing="ij")
+        v, u = vv.reshape(-1), uu.reshape(-1)
+        frames = torch.full_like(v, int(i))
+        chunk = self.cfg.output.render_chunk_rays
+        rgb, alpha = [], []
+        for k in range(0, h * w, chunk):
+            out = self.render_rays(frames[k:k + chunk], v[k:k + chunk], u[k:k + chunk])
+            rgb.append(out.rgb)
+            alpha.append(out.alpha[0])
+        return {"rgb": torch.cat(rgb).clamp(0, 1).view(h, w, 3).cpu().numpy(),
+                "alpha": torch.cat(alpha).view(h, w).cpu().numpy()}
+
+    def mean_person_colour(self) -> np.ndarray:
+        """Mean colour (3,) of the person's pixels over the training frames."""
+        m = self.data.masks[self.train_ids]
+        if not m.any():
+            return np.full(3, 0.5)
+        return self.data.images[self.train_ids][m].astype(np.float64).mean(0) / 255.0
+
+    def evaluate(self, views: list[int] | None = None, keep_images: bool = False) -> dict[str, Any]:
+        """PSNR in the person's box, mask IoU and the constant-colour baseline on held-out frames."""
+        views = list(self.eval_ids) if views is None else list(views)
+        mean_colour = self.mean_person_colour()
+        rows, images = [], {}
+        for i in views:
+            pred = self.render_view(i)
+            gt = self.data.images[i].astype(np.float32) / 255.0
+            mask = self.data.masks[i]
+            box = mask_box(mask, self.cfg.output.box_margin_px)
+            baseline = self.baseline_image(i, mean_colour)
+            empty = self.baseline_image(i, None)
+            row = {"frame": int(i), "name": self.data.names[i], "mask_iou": mask_iou(pred["alpha"] > 0.5, mask)}
+            if box is not None:
+                sl = (slice(box[0], box[1]), slice(box[2], box[3]))
+                row["psnr_box"] = psnr(pred["rgb"][sl], gt[sl])
+                row["psnr_box_baseline"] = psnr(baseline[sl], gt[sl])
+                row["psnr_box_background"] = psnr(empty[sl], gt[sl])
+            rows.append(row)
+            if keep_images:
+                images[int(i)] = pred
+        keys = [k for k in ("mask_iou", "psnr_box", "psnr_box_baseline", "psnr_box_background") if any(k in r for r in rows)]
+        summary = {k: float(np.mean([r[k] for r in rows if k in r])) for k in keys}
+        return {"views": rows, "mean": summary, "images": images}
+
+    def baseline_image(self, i: int, mean_colour: np.ndarray | None) -> np.ndarray:
+        """The trivial prediction: the background, with the mask's box filled with ``mean_colour``
+        (None: the background alone, as if no person were rendered)."""
+        h, w = self.data.size_hw
+        if self.bg_colour is not None:
+            img = np.broadcast_to(self.data.background, (h, w, 3)).astype(np.float32).copy()
+        elif self.data.background is not None:
+            img = self.data.background[i].astype(np.float32) / 255.0
+        else:
+            img = self.data.images[i].astype(np.float32) / 255.0
+        box = mask_box(self.data.masks[i], self.cfg.output.box_margin_px)
+        if box is not None and mean_colour is not None:
+            img = img.copy()
+            img[box[0]:box[1], box[2]:box[3]] = mean_colour
+        return img
+
+
+# ====================================================================== metrics
+def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    mse = float(np.mean((np.asarray(pred, np.float64) - np.asarray(gt, np.float64)) ** 2))
+    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
+
+
+def mask_iou(pred: np.ndarray, gt: np.ndarray) -> float:
+    """Intersection over union of two boolean masks (1 when both are empty)."""
+    union = np.logical_or(pred, gt).sum()
+    return 1.0 if union == 0 else float(np.logical_and(pred, gt).sum() / union)
+
+
+def mask_box(mask: np.ndarray, margin_px: int = 0) -> tuple[int, int, int, int] | None:
+    """Bounding box ``(v0, v1, u0, u1)`` (end-exclusive) of a boolean mask grown by ``margin_px``, None if empty."""
+    rows, cols = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+    if rows.size == 0:
+        return None
+    h, w = mask.shape
+    return (max(0, rows[0] - margin_px), min(h, rows[-1] + 1 + margin_px),
+            max(0, cols[0] - margin_px), min(w, cols[-1] + 1 + margin_px))
+
+
+# ====================================================================== the loop
+@dataclass
+class HumanTrainResult:
+    trainer: HumanTrainer
+    resumed_from: int | None
+    evaluation: dict[str, Any] | None = None
+
+    @property
+    def model(self) -> HumanModel:
+        return self.trainer.model
+
+
+def train_human(
+    data: HumanTrainData,
+    cfg: TrainHumanConfig,
+    work_dir: str | os.PathLike,
+    device: str = "cpu",
+    seed: int = 0,
+    background_model=None,
+    progress: bool = False,
+    stop_after: int | None = None,
+    on_log: Callable[[HumanTrainer, StepStats], None] | None = None,
+) -> HumanTrainResult:
+    """Train (or resume) a human model; checkpoints go to ``work_dir/last.pt``.
+
+    ``background_model``: the trained scene (``SceneModel``) to composite over, or None (see
+    the module docstring). A checkpoint of this run (same config, data, seed, device and
+    background model) in ``work_dir`` is resumed; one is written every
+    ``output.checkpoint_every`` steps and at the end. ``stop_after``: return after that many
+    total steps without writing a checkpoint, as if killed (tests).
+    """
+    from nsim.progress import progress_bar
+
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    trainer = HumanTrainer(data, cfg, device, seed, background_model)
+    ckpt = work_dir / CHECKPOINT_NAME
+    resumed = None
+    if ckpt.is_file():
+        try:
+            trainer.load_checkpoint(ckpt)
+            resumed = trainer.step
+            log.info("resuming from %s at step %d", ckpt, trainer.step)
+        except (InputError, RuntimeError, KeyError) as exc:
+            log.warning("ignoring checkpoint %s: %s", ckpt, exc)
+            trainer = HumanTrainer(data, cfg, device, seed, background_model)
+    out = cfg.output
+    end = cfg.optim.steps if stop_after is None else min(cfg.optim.steps, stop_after)
+    with progress_bar(cfg.optim.steps, "training human", progress) as bar:
+        bar.advance(trainer.step)
+        while trainer.step < end:
+            stats = trainer.train_step()
+            step = trainer.step
+            if step % out.log_every == 0 or step == cfg.optim.steps:
+                trainer.history.append({"step": step, "loss": stats.loss, "psnr_train": stats.psnr, **stats.extra})
+                bar.advance(0, loss=f"{stats.loss:.4f}", psnr=f"{stats.psnr:.2f}")
+                log.info("step %d loss %.5f psnr %.2f (%.1f s)", step, stats.loss, stats.psnr, trainer.train_seconds)
+                if on_log is not None:
+                    on_log(trainer, stats)
+            if step % out.checkpoint_every == 0 or step == cfg.optim.steps:
+                t0 = time.perf_counter()
+                trainer.save_checkpoint(ckpt)
+                trainer.train_seconds += time.perf_counter() - t0
+            bar.advance(1)
+    return HumanTrainResult(trainer, resumed)
+
+
+def _spread(items: list[int], n: int) -> list[int]:
+    if n <= 0 or n >= len(items):
+        return items
+    return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
+
+
+def write_gif(path: str | os.PathLike, frames: list[np.ndarray], fps: float) -> Path:
+    """An endlessly looping GIF of uint8 ``(H, W, 3)`` frames (Pillow), written atomically."""
+    from PIL import Image
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    images = [Image.fromarray(np.ascontiguousarray(f)) for f in frames]
+    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=int(round(1000.0 / fps)),
+                   loop=0, optimize=False)
+    os.replace(tmp, path)
+    return path
+
+
+def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[str, Any]:
+    """Write the human-checkpoint files into ``out_dir``; returns the summary.
+
+    Files: ``human.pt`` + ``human.json`` (weights; config, skeleton, canonical box — what
+    ``nsim.human.nerf.load_human_model`` rebuilds the model from), ``turntable.png`` (the rest
+    pose from ``output.preview_views`` directions), ``gait.gif`` (one walking cycle),
+    ``history.json``, ``eval/<frame>.png`` (render | ground truth) and ``eval.json`` (per
+    held-out view: PSNR in the person's box, mask IoU, the constant-colour baseline). No file
+    holds a timing, so a rerun on CPU writes the same bytes.
+    """
+    from nsim.human.nerf import gait_frames, save_human_model, turntable
+    from nsim.io.images import to_uint8, write_image
+
+    trainer = result.trainer
+    cfg = trainer.cfg
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model = trainer.model.eval()
+    lo, hi = pose_aabb(trainer.data.skeleton, trainer.data.skeleton.rest_transforms(), model.padding_m)
+    save_human_model(out_dir, model, extra={
+        "frames_trained": [int(i) for i in trainer.train_ids],
+        "frames_held_out": [int(i) for i in trainer.eval_ids],
+        "steps": trainer.step,
+        "config": to_dict(cfg),
+    })
+    o = cfg.output
+    write_image(out_dir / "turntable.png", turntable(model, None, o.preview_views, o.preview_width, o.preview_height))
+    write_gif(out_dir / "gait.gif", gait_frames(model, o.gait_frames, o.preview_width, o.preview_height), o.gait_fps)
+    (out_dir / "history.json").write_text(json.dumps(trainer.history, indent=1) + "\n")
+    summary: dict[str, Any] = {"steps": trainer.step, "canonical_box_m": [lo.tolist(), hi.tolist()]}
+    views = _spread(list(trainer.eval_ids), o.eval_views)
+    if views:
+        ev = trainer.evaluate(views, keep_images=True)
+        (out_dir / "eval").mkdir(exist_ok=True)
+        for i, pred in ev["images"].items():
+            write_image(out_dir / "eval" / f"frame_{i:05d}.png",
+                        np.concatenate([to_uint8(pred["rgb"]), trainer.data.images[i]], axis=1))
+        (out_dir / "eval.json").write_text(json.dumps({"views": ev["views"], "mean": ev["mean"]}, indent=1) + "\n")
+        summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
+    result.evaluation = summary
+    return summary
+
+
+__all__ = [
+    "HumanDataConfig",
+    "HumanLossConfig",
+    "HumanOptimConfig",
+    "HumanOutputConfig",
+    "HumanTrainData",
+    "HumanTrainResult",
+    "HumanTrainer",
+    "TrainHumanConfig",
+    "export_human",
+    "mask_box",
+    "mask_iou",
+    "psnr",
+    "train_human",
+    "write_gif",
+]
