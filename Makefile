@@ -5,10 +5,11 @@ BIN      := $(VENV)/bin
 STAMP    := $(VENV)/.nsim-installed
 PYTEST_ARGS ?=
 BENCH_ARGS  ?=
+PAPER_ARGS  ?= --size small
 DEMO_ARGS   ?=
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: setup test test-all demo bench lint clean
+.PHONY: setup test test-all demo paper bench lint clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -28,6 +29,10 @@ test: setup
 # The main job end to end on the built-in test room; ends by printing `nsim ls`.
 demo: setup
 	$(BIN)/python pipelines/demo.py $(DEMO_ARGS)
+
+# The paper's five tables end to end on the test room (reduced size; --size tiny|small|default).
+paper: setup
+	$(BIN)/python pipelines/paper.py $(PAPER_ARGS)
 
 # Every measured claim: one script per claim in bench/, each printing a JSON object last.
 bench: setup

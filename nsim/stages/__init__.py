@@ -19,8 +19,10 @@ STAGE_MODULES: dict[str, str] = {
     "capture": "nsim.stages.capture",
     "reconstruct": "nsim.stages.reconstruct",
     "train_scene": "nsim.stages.train_scene",
+    "train_human": "nsim.stages.train_human",
     "simulate": "nsim.stages.simulate",
     "render": "nsim.stages.render",
+    "evaluate": "nsim.stages.evaluate",
 }
 
 

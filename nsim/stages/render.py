@@ -475,12 +475,12 @@ class HumanSet:
 
     @classmethod
     def load(cls, human_dirs: list[str], trajectory_file: str | None, device) -> HumanSet:
-        from nsim.human.nerf import load_human
+        from nsim.human.nerf import load_human_model
 
         if trajectory_file is None:
             raise InputError("render: human checkpoints need a trajectory (people come from nsim simulate)")
         arrays = dict(np.load(trajectory_file, allow_pickle=False))
-        return cls([load_human(d, device=device) for d in human_dirs], arrays, device)
+        return cls([load_human_model(d, device=device).eval() for d in human_dirs], arrays, device)
 
     def _loop(self, motion: str, height: float):
         from nsim.human.gait import DEFAULT_CLIPS, default_clip
@@ -514,14 +514,14 @@ class HumanSet:
         """People whose posed box the rays can see, with the ray mask to cast their samples on."""
         import torch
 
-        from nsim.human.skeleton import pose_obb
         from nsim.rendering.culling import OrientedBox, camera_box_bounds, lidar_ray_box_mask
 
         people = []
         for k, T in self.joint_transforms(tick):
             model = self.models[k % len(self.models)]
-            box_to_world, lo, hi = pose_obb(model.skeleton, T)
-            box = OrientedBox.from_min_max(lo, hi, box_to_world)
+            with torch.no_grad():
+                lo, hi = model.posed_box(torch.as_tensor(T, dtype=torch.float32)).reshape(2, 3).cpu().numpy()
+            box = OrientedBox.from_min_max(lo.astype(np.float64), hi.astype(np.float64), np.eye(4))
             o = origins.cpu().numpy().astype(np.float64)
             d = dirs.cpu().numpy().astype(np.float64)
             hit = lidar_ray_box_mask(o, d, box)  # exact ray-box test for every ray

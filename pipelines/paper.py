@@ -1,0 +1,193 @@
+"""The paper's five tables, regenerated end to end on the built-in test room; prints them.
+
+    python pipelines/paper.py [--size tiny|small|default] [--workspace DIR] [--seed N] [--device auto]
+                              [--out DIR]
+
+For each of the five room presets (robot-lab, common-room, kitchen, living-room, seminar-room):
+capture synth -> poses (reconstruct, or the capture's ground-truth poses at ``tiny``) ->
+train-scene -> render of the scene's held-out frames at their own cameras (poses mode). Then a
+Spot run in robot-lab (simulate configs/scenarios/spot_run.json) rendered along the run by
+configs/robots/spot.yaml in robot-lab's scene (trajectory mode), and ``evaluate`` for each table:
+
+    scenes      the five held-out renders against the captured frames (images and depth EXRs)
+    spot-rgb    the Spot cameras against the test room's oracle at the same camera poses
+    spot-depth  the Spot depth cameras against the oracle's depth
+    slam        SfM on Spot's left camera: simulated frames vs the oracle's frames at the same poses
+    detection   people on simulated vs oracle frames (n/a: the run is rendered without human
+                checkpoints, there is no train-human stage yet)
+
+Sizes and their expected wall time on 2 shared CPU cores (the reduced ``small`` run is the one in
+docs/results.md; measured: tiny 5.3 min, small 9-11 min):
+
+    tiny     96x72 captures of 40 frames, the capture's ground-truth poses (no SfM at this size),
+             300 training steps, Spot cameras at 64x48 for 8 ticks: about 6 minutes
+    small    160x120 captures of 100 frames reconstructed by pycolmap (made metric and put in the
+             room's frame by the capture's ground-truth trajectory, as a robot's odometry would),
+             600 training steps, 4 held-out frames per room, a 6 s Spot run every 0.2 s (31 ticks)
+             with the cameras at 64x48 and the SLAM camera (left) alone at 160x120: about 12 minutes
+    default  320x240 captures of 150 frames, reconstruct, the cpu training preset, every held-out
+             frame, Spot cameras at 160x120 every 0.25 s of the full 30 s run: about 2 hours (not measured)
+
+Only chains stage ``run()`` calls; re-running is cheap (every cached action returns at once).
+``--out DIR`` also writes every table there as Markdown (``<table>.md``) plus ``tables.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from nsim.config import load_config  # noqa: E402
+from nsim.context import RunContext  # noqa: E402
+from nsim.crowd.scenario import load_scenario  # noqa: E402
+from nsim.errors import NsimError  # noqa: E402
+from nsim.stages import capture, evaluate, reconstruct, render, simulate, train_scene  # noqa: E402
+from nsim.synth.room import ROOM_PRESETS  # noqa: E402
+from nsim.workspace.store import Store, default_root  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+ROOMS = tuple(ROOM_PRESETS)
+EXPECTED_MIN = {"tiny": 6, "small": 12, "default": 120}
+
+# Per size: preset and overrides of each stage. "reconstruct": None trains on ground-truth poses.
+SIZES: dict[str, dict[str, tuple[str, list[str]] | None]] = {
+    "tiny": {
+        "capture": ("tiny", ["supersample=1", "video=false"]),
+        "reconstruct": None,
+        "train_scene": ("tiny", ["optim.steps=300"]),
+        "heldout": ("tiny", ["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=null"]),
+        "simulate": ("tiny", ["video=false"]),
+        "spot": ("tiny", ["max_frames=8"]),
+        "slam": None,
+        "evaluate": ("tiny", []),
+    },
+    "small": {
+        "capture": ("tiny", ["width=160", "height=120", "n_frames=100", "supersample=1", "video=false"]),
+        "reconstruct": ("tiny", ["frames=100"]),
+        "train_scene": ("tiny", ["optim.steps=600"]),
+        "heldout": ("tiny", ["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=4"]),
+        "simulate": ("default", ["max_duration_s=6.0", "video=false"]),
+        "spot": ("tiny", ["tick_stride=4", "max_frames=null"]),
+        "slam": ("tiny", ["sensors=[left]", "image_scale=0.25", "tick_stride=4", "max_frames=null"]),
+        "evaluate": ("default", ["slam.max_features=2048", "slam.matcher=exhaustive"]),
+    },
+    "default": {
+        "capture": ("default", []),
+        "reconstruct": ("default", ["frames=150"]),
+        "train_scene": ("cpu", []),
+        "heldout": ("cpu", ["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=null"]),
+        "simulate": ("default", []),
+        "spot": ("cpu", ["tick_stride=5", "video=false"]),
+        "slam": None,
+        "evaluate": ("default", []),
+    },
+}
+
+
+def step(name: str, fn):
+    t0 = time.perf_counter()
+    out = fn()
+    print(f"[paper] {name:<34} {time.perf_counter() - t0:7.1f} s", flush=True)
+    return out
+
+
+def cfg_of(cls, stage: str, size: str, key: str, extra: list[str] = ()):
+    preset, overrides = SIZES[size][key]
+    return load_config(cls, stage=stage, preset=preset, overrides=[*overrides, *extra])
+
+
+def scene_of_room(ctx: RunContext, room: str, size: str) -> tuple[str, str, str]:
+    """capture -> poses -> scene for one room; returns (capture id, scene id, held-out render id)."""
+    cap_cfg = cfg_of(capture.Config, "capture", size, "capture", [f"room={room}"])
+    cap = step(f"capture synth ({room})", lambda: capture.run(capture.Inputs(), cap_cfg, ctx)).capture
+    ctx.store.set_ref(f"capture/paper-{room}", cap)
+    poses = cap
+    if SIZES[size]["reconstruct"] is not None:
+        art = ctx.store.get(cap)
+        rec_cfg = cfg_of(reconstruct.Config, "reconstruct", size, "reconstruct")
+        rec_inputs = reconstruct.Inputs(capture=cap, reference=art.file("gt_trajectory.tum"))
+        poses = step(f"reconstruct ({room})", lambda: reconstruct.run(rec_inputs, rec_cfg, ctx)).poses
+        ctx.store.set_ref(f"poses/paper-{room}", poses)
+    ts_cfg = cfg_of(train_scene.Config, "train_scene", size, "train_scene")
+    scene = step(f"train-scene ({room})", lambda: train_scene.run(train_scene.Inputs(poses=poses), ts_cfg, ctx)).scene
+    ctx.store.set_ref(f"scene/paper-{room}", scene)
+    ren_cfg = cfg_of(render.Config, "render", size, "heldout")
+    ren_inputs = render.Inputs(poses=poses, scene=scene)
+    held = step(f"render held-out ({room})", lambda: render.run(ren_inputs, ren_cfg, ctx)).render
+    ctx.store.set_ref(f"render/paper-heldout-{room}", held)
+    return cap, scene, held
+
+
+def run_paper(workspace: Path, size: str, seed: int, device: str, out_dir: Path | None) -> dict:
+    ctx = RunContext(store=Store(workspace), device_spec=device, seed=seed)
+    heldout, scenes = [], {}
+    for room in ROOMS:
+        _, scene, held = scene_of_room(ctx, room, size)
+        heldout.append(held)
+        scenes[room] = scene
+
+    # Spot's run in robot-lab (the scenario's room), rendered in robot-lab's trained scene.
+    sim_cfg = cfg_of(simulate.Config, "simulate", size, "simulate")
+    scenario = load_scenario(REPO / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
+    traj = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx)).trajectory
+    ctx.store.set_ref("trajectory/paper-spot-run", traj)
+    spot_cfg = cfg_of(render.Config, "render", size, "spot")
+    spot_inputs = render.Inputs(trajectory=traj, scene=scenes["robot-lab"], rig=REPO / "configs" / "robots" / "spot.yaml")
+    spot = step("render (spot rig, robot-lab)", lambda: render.run(spot_inputs, spot_cfg, ctx)).render
+    ctx.store.set_ref("render/paper-spot-run", spot)
+
+    slam = spot
+    if SIZES[size]["slam"] is not None:
+        # SfM needs larger frames than the other tables: the SLAM camera alone, at a higher resolution
+        slam_cfg = cfg_of(render.Config, "render", size, "slam")
+        slam = step("render (slam camera, robot-lab)", lambda: render.run(spot_inputs, slam_cfg, ctx)).render
+        ctx.store.set_ref("render/paper-slam-camera", slam)
+
+    tables = {}
+    for table, renders in (("scenes", heldout), ("spot-rgb", [spot]), ("spot-depth", [spot]), ("slam", [slam]),
+                           ("detection", [spot])):
+        ev_cfg = cfg_of(evaluate.Config, "evaluate", size, "evaluate", [f"table={table}"])
+        ev_inputs = evaluate.Inputs(renders=tuple(renders))
+        out = step(f"evaluate --table {table}", lambda c=ev_cfg, i=ev_inputs: evaluate.run(i, c, ctx))
+        ctx.store.set_ref(f"evaluation/paper-{table}", out.evaluation)
+        tables[table] = evaluate.load_table(ctx, out.evaluation)
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for name, table in tables.items():
+            (out_dir / f"{name}.md").write_text(table.to_markdown())
+        (out_dir / "tables.md").write_text("\n".join(t.to_markdown() for t in tables.values()))
+        (out_dir / "artifacts.json").write_text(json.dumps(
+            {name: ctx.store.resolve(f"evaluation/paper-{name}") for name in tables}, indent=1) + "\n")
+    return tables
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", choices=tuple(SIZES), default="small")
+    ap.add_argument("--workspace", type=Path, default=default_root())
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--out", type=Path, default=None, help="also write the tables as Markdown here")
+    args = ap.parse_args()
+    print(f"[paper] size {args.size}: expected about {EXPECTED_MIN[args.size]} min on 2 CPU cores "
+          f"(less where the run cache has the steps)", flush=True)
+    t0 = time.perf_counter()
+    try:
+        tables = run_paper(args.workspace, args.size, args.seed, args.device, args.out)
+    except NsimError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for table in tables.values():
+        print()
+        print(table.to_text(), end="")
+    print(f"\n[paper] five tables in {time.perf_counter() - t0:.0f} s (size {args.size}, workspace {args.workspace})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

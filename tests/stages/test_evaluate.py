@@ -1,0 +1,301 @@
+"""`nsim evaluate` at tiny size: a micro scene checkpoint, a short Spot run, a poses-mode render of
+the held-out frames; every table, a render equal to its ground truth scoring exactly, and each bad
+input ending in one line and exit 2."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from nsim.cli import main
+from nsim.config import configs_dir
+from nsim.context import RunContext
+from nsim.workspace.store import Store
+
+CAPTURE = ["width=64", "height=48", "n_frames=24", "supersample=1", "video=false"]
+MICRO = {
+    "field": {"hash_levels": 4, "hash_log2_table_size": 10, "hash_max_resolution": 128, "hidden_dim": 16,
+              "color_hidden_dim": 16, "color_hidden_layers": 1, "appearance_dim": 4, "sh_degree": 2, "backend": "torch"},
+    "sampler": {"proposal_samples": [16, 8], "final_samples": 8, "proposal_hash_levels": 3,
+                "proposal_hash_log2_table_size": 10, "proposal_hash_max_resolutions": [32, 64], "proposal_hidden_dim": 8},
+    "optim": {"steps": 30, "rays_per_batch": 128, "num_threads": 1},
+    "output": {"log_every": 10, "checkpoint_every": 100, "eval_views": 1, "final_eval_views": 1,
+               "occupancy_cell_m": 0.3, "obstacle_cell_m": 0.25},
+}
+SPOT = configs_dir() / "robots" / "spot.yaml"
+CAMERAS = ("frontleft", "left", "back")
+HELDOUT = [0, 8, 16]  # train-scene tiny holds out every 8th of the 24 frames
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """A capture, a micro scene checkpoint, a 2 s Spot run rendered by three cameras (3 frames) and
+    the scene's held-out frames rendered at their own cameras."""
+    root = tmp_path_factory.mktemp("evaluate")
+    ws = str(root / "ws")
+    args = ["--workspace", ws, "capture", "synth"]
+    for kv in CAPTURE:
+        args += ["--set", kv]
+    assert main([*args, "--tag", "capture/t"]) == 0
+    cfg_file = root / "micro.yaml"
+    cfg_file.write_text(yaml.safe_dump(MICRO))
+    assert main(["--workspace", ws, "--device", "cpu", "train-scene", "--poses", "capture/t", "--preset", "tiny",
+                 "--config", str(cfg_file), "--tag", "scene/t"]) == 0
+    assert main(["--workspace", ws, "simulate", "--preset", "tiny", "--set", "max_duration_s=2.0", "--scenario",
+                 str(configs_dir() / "scenarios" / "spot_run.json"), "--tag", "trajectory/t"]) == 0
+    assert main(["--workspace", ws, "--device", "cpu", "render", "--trajectory", "trajectory/t", "--scene", "scene/t",
+                 "--rig", str(SPOT), "--preset", "tiny", "--set", f"sensors=[{','.join(CAMERAS)}]",
+                 "--tag", "render/spot"]) == 0
+    assert main(["--workspace", ws, "--device", "cpu", "render", "--poses", "capture/t", "--scene", "scene/t",
+                 "--preset", "tiny", "--set", "frames=heldout", "--set", "tick_stride=1", "--set", "image_scale=1.0",
+                 "--tag", "render/heldout"]) == 0
+    return Store(ws)
+
+
+def evaluate(store: Store, table: str, *renders: str, sets: tuple[str, ...] = ("lpips_net=none",)) -> int:
+    args = ["--workspace", str(store.root), "--device", "cpu", "evaluate", "--preset", "tiny", "--table", table]
+    for r in renders:
+        args += ["--render", r]
+    for s in sets:
+        args += ["--set", s]
+    return main(args)
+
+
+def latest(store: Store):
+    art = store.get(store.resolve("evaluation/latest"))
+    meta = json.loads(art.file("evaluation.json").read_text())
+    table = json.loads(art.file(f"{meta['table']}.json").read_text())
+    records = json.loads(art.file("records.json").read_text())["records"]
+    return art, table, records
+
+
+def cell(value) -> float:
+    """A table JSON cell as a float (inf is stored as {"float": "inf"})."""
+    return float(value["float"]) if isinstance(value, dict) else float(value)
+
+
+def variant(store: Store, base_ref: str, name: str, edit) -> str:
+    """A copy of a render artifact with ``edit(dir)`` applied, published under the same inputs (a
+    stand-in for a render whose files are not what the simulator wrote)."""
+    base = store.get(store.resolve(base_ref))
+    m = base.manifest
+    key = hashlib.sha256(f"test-variant:{base.id}:{name}".encode()).hexdigest()
+    with store.publish(kind="render", stage="render", version=m["stage_version"], key=key, config=m["config"],
+                       inputs=m["inputs"], seed=m["seed"]) as out:
+        for src in base.path.rglob("*"):
+            if src.is_file() and src.name != "manifest.json":
+                dst = out.dir / src.relative_to(base.path)
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(src, dst)
+                os.chmod(dst, 0o644)
+        edit(out.dir)
+    return out.ref
+
+
+# ---------------------------------------------------------------------------------- the tables
+def test_scenes_table(world, capsys):
+    assert evaluate(world, "scenes", "render/heldout", sets=("lpips_net=alex",)) == 0
+    art, table, records = latest(world)
+    capsys.readouterr()
+    assert evaluate(world, "scenes", "render/heldout", sets=("lpips_net=alex",)) == 0
+    assert "cached" in capsys.readouterr().err and world.resolve("evaluation/latest") == art.id
+    for name in ("scenes.md", "scenes.tex", "scenes.csv", "scenes.json", "records.json", "evaluation.json",
+                 "plots/psnr_db_per_frame.png", "plots/abs_rel_per_frame.png", "plots/bars.png"):
+        assert art.file(name).stat().st_size > 0, name
+    assert len(list((art.path / "plots" / "depth_error").glob("*.png"))) == 1  # tiny: error_maps 1
+    (row,) = table["rows"]
+    assert row["Environment"] == "robot-lab" and row["frames"] == len(HELDOUT)
+    assert 8.0 < cell(row["PSNR"]) < 60.0 and 0.0 < cell(row["SSIM"]) <= 1.0
+    assert 0.0 <= cell(row["AbsRel"]) and 0.0 <= cell(row["δ<1.25"]) <= 1.0
+    lp = row["LPIPS"]
+    assert (isinstance(lp, dict) and "not_available" in lp) or 0.0 <= lp <= 1.5
+    assert len(records) == 2 * len(HELDOUT)  # one image and one depth record per frame
+    assert sorted({r["frame"] for r in records}) == HELDOUT
+    image = [r for r in records if "psnr_db" in r]
+    assert np.isclose(np.mean([r["psnr_db"] for r in image]), cell(row["PSNR"]))
+    notes = " ".join(table["notes"])
+    assert "its own images and depth EXRs" in notes and "without median scaling" in notes
+    assert "| robot-lab |" in art.file("scenes.md").read_text()
+    assert r"\toprule" in art.file("scenes.tex").read_text()
+
+
+def test_scenes_render_equal_to_its_ground_truth_is_exact(world):
+    """Frames that are the capture's own images and depth: PSNR inf, SSIM 1, AbsRel 0."""
+    cap = world.get(world.resolve("capture/t"))
+    frames = json.loads(cap.file("transforms.json").read_text())["frames"]
+
+    def copy_truth(d: Path) -> None:
+        for i in HELDOUT:
+            shutil.copyfile(cap.path / frames[i]["file_path"], d / "frames" / "rgb" / f"{i:06d}.png")
+            shutil.copyfile(cap.path / frames[i]["depth_file_path"], d / "frames" / "depth" / f"{i:06d}.exr")
+
+    ref = variant(world, "render/heldout", "truth", copy_truth)
+    assert evaluate(world, "scenes", ref) == 0
+    _, table, _ = latest(world)
+    (row,) = table["rows"]
+    assert math.isinf(cell(row["PSNR"])) and cell(row["SSIM"]) == pytest.approx(1.0)
+    assert cell(row["AbsRel"]) == pytest.approx(0.0, abs=1e-7) and cell(row["δ<1.25"]) == 1.0
+
+
+def test_spot_rgb_and_depth_tables(world):
+    n_frames = len(json.loads(world.get(world.resolve("render/spot")).file("render.json").read_text())["frames"])
+    assert evaluate(world, "spot-rgb", "render/spot") == 0
+    art, table, records = latest(world)
+    assert [r["Camera"] for r in table["rows"]] == list(CAMERAS)
+    assert len(records) == n_frames * len(CAMERAS)
+    for row in table["rows"]:
+        assert 5.0 < cell(row["PSNR"]) < 60.0 and row["frames"] == n_frames
+        assert row["LPIPS"] == {"not_available": "LPIPS not computed"}
+    assert art.file("plots/ssim_per_frame.png").is_file()
+    assert evaluate(world, "spot-depth", "render/spot") == 0
+    art, table, records = latest(world)
+    assert len(records) == n_frames * len(CAMERAS)
+    for row in table["rows"]:
+        assert math.isfinite(cell(row["AbsRel"])) and cell(row["AbsRel"]) >= 0.0
+        deltas = [cell(row[k]) for k in ("δ<1.05", "δ<1.10", "δ<1.25", "δ<1.25²", "δ<1.25³")]
+        assert all(0.0 <= d <= 1.0 for d in deltas) and deltas == sorted(deltas)
+    assert len(list((art.path / "plots" / "depth_error").glob("*.png"))) == len(CAMERAS)
+
+
+def test_spot_render_equal_to_the_oracle_is_exact(world):
+    """Camera images and depth made by the oracle at the frames' camera poses score exactly: checks
+    that evaluation finds the same cameras, poses, exposure and depth kind as the renderer."""
+    from nsim.io.exr import write_depth_exr
+    from nsim.io.images import write_image
+    from nsim.io.transforms_json import read_transforms
+    from nsim.sensors.rig import Rig
+    from nsim.stages.evaluate import sensor_depth_gt, uint8_rgb
+    from nsim.synth.oracle import RoomOracle
+    from nsim.synth.room import RoomSpec
+
+    cap = world.get(world.resolve("capture/t"))
+    oracle = RoomOracle(RoomSpec.from_dict(json.loads(cap.file("room.json").read_text())["spec"]))
+
+    def oracle_frames(d: Path) -> None:
+        rig = Rig.from_resolved(json.loads((d / "rig.json").read_text()))
+        for s in rig.cameras:
+            for f in read_transforms(d / "cameras" / f"{s.name}.json").frames:
+                view = oracle.render_gt(f.camera, f.cam_to_world, 1)
+                write_image(d / f.file_path, uint8_rgb(s.expose(view.rgb)))
+                write_depth_exr(d / f.file_path.replace("/rgb/", "/depth/").replace(".png", ".exr"),
+                                sensor_depth_gt(s, view.depth_range).astype(np.float32))
+
+    ref = variant(world, "render/spot", "oracle", oracle_frames)
+    assert evaluate(world, "spot-rgb", ref) == 0
+    for row in latest(world)[1]["rows"]:
+        assert math.isinf(cell(row["PSNR"])) and cell(row["SSIM"]) == pytest.approx(1.0)
+    assert evaluate(world, "spot-depth", ref) == 0
+    for row in latest(world)[1]["rows"]:
+        assert cell(row["AbsRel"]) < 1e-6 and cell(row["δ<1.05"]) == 1.0
+
+
+def test_slam_failure_is_not_available(world):
+    """Three 64x48 frames are too few for SfM: the row is n/a with the reason, not a crash."""
+    assert evaluate(world, "slam", "render/spot") == 0
+    art, table, _ = latest(world)
+    (row,) = table["rows"]
+    assert row["Sequence"] == "left"
+    assert "not_available" in row["ATE real [m]"] and "not_available" in row["ATE sim [m]"]
+    assert "SfM" in row["ATE sim [m]"]["not_available"]
+    assert art.file("slam/left/ground_truth.tum").is_file()
+
+
+def test_detection_without_people_is_not_available(world):
+    assert evaluate(world, "detection", "render/spot") == 0
+    _, table, _ = latest(world)
+    assert [r["Scene"] for r in table["rows"]] == list(CAMERAS)
+    assert all("no people" in r["IoU"]["not_available"] for r in table["rows"])
+
+
+# ---------------------------------------------------------------------------------- bad input
+def _resize_first_rgb(d: Path) -> None:
+    from nsim.io.images import read_image, write_image
+
+    p = d / "frames" / "rgb" / f"{HELDOUT[1]:06d}.png"
+    write_image(p, read_image(p)[:24, :32])
+
+
+def _nan_depth(d: Path) -> None:
+    from nsim.io.exr import read_depth_exr, write_depth_exr
+
+    p = d / "frames" / "depth" / f"{HELDOUT[0]:06d}.exr"
+    depth = read_depth_exr(p)
+    depth[20:28, 28:36] = np.nan
+    write_depth_exr(p, depth)
+
+
+def _frame_out_of_range(d: Path) -> None:
+    meta = json.loads((d / "render.json").read_text())
+    meta["frames"].append({"index": 999, "name": "frame_00999.png", "time_s": 99.9})
+    (d / "render.json").write_text(json.dumps(meta))
+
+
+def _extra_trajectory_frame(d: Path) -> None:
+    meta = json.loads((d / "render.json").read_text())
+    meta["frames"].append({"index": 999, "time_s": 49.95})
+    (d / "render.json").write_text(json.dumps(meta))
+
+
+def _empty_masks(d: Path) -> None:
+    from nsim.io.coco import write_instance_mask
+
+    for cam in CAMERAS:
+        (d / cam / "mask").mkdir(exist_ok=True)
+        for f in json.loads((d / "render.json").read_text())["frames"]:
+            write_instance_mask(d / cam / "mask" / f"{f['index']:06d}.png", np.zeros(_shape(d, cam), np.uint16))
+
+
+def _shape(d: Path, cam: str) -> tuple[int, int]:
+    data = json.loads((d / "cameras" / f"{cam}.json").read_text())
+    return int(data["h"]), int(data["w"])
+
+
+def _shifted_timestamps(d: Path) -> None:
+    data = json.loads((d / "cameras" / "left.json").read_text())
+    for f in data["frames"]:
+        f["timestamp"] += 1000.0
+    (d / "cameras" / "left.json").write_text(json.dumps(data))
+
+
+BAD = {
+    "wrong mode (scenes, trajectory render)": ("scenes", "render/spot", None, (), "trajectory-mode render"),
+    "wrong mode (spot-rgb, poses render)": ("spot-rgb", "render/heldout", None, (), "poses-mode render"),
+    "sizes differ": ("scenes", "render/heldout", _resize_first_rgb, (), "32x24"),
+    "NaN depth at valid pixels": ("scenes", "render/heldout", _nan_depth, (), "NaN"),
+    "frame not in the capture": ("scenes", "render/heldout", _frame_out_of_range, (), "frame 999"),
+    "frame counts differ (cameras)": ("spot-depth", "render/spot", _extra_trajectory_frame, (), "frame 999"),
+    "empty person masks": ("spot-rgb", "render/spot", _empty_masks, ("region=people",), "empty"),
+    "no common timestamps": ("slam", "render/spot", _shifted_timestamps, (), "share no timestamp"),
+    "unknown table": ("tables", "render/spot", None, (), "table"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_input_is_one_line_and_exit_2(world, case, capsys):
+    table, base, edit, sets, words = BAD[case]
+    ref = variant(world, base, case, edit) if edit is not None else base
+    capsys.readouterr()
+    assert evaluate(world, table, ref, sets=("lpips_net=none", *sets)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and words in err[0], err
+
+
+def test_stage_run_and_rebuild(world):
+    """The stage without the CLI: same artifact as the CLI's, and ``rebuild`` reproduces it."""
+    from nsim.config import load_config
+    from nsim.stages import evaluate as ev
+
+    ctx = RunContext(store=world, device_spec="cpu")
+    cfg = load_config(ev.Config, stage="evaluate", preset="tiny", overrides=["table=spot-depth", "lpips_net=none"])
+    out = ev.run(ev.Inputs(renders=("render/spot",)), cfg, ctx)
+    manifest = world.get(out.evaluation).manifest
+    assert ev.rebuild(manifest, RunContext(store=world, device_spec="cpu")) == out.evaluation
+    assert ev.load_table(ctx, out.evaluation).rows[0]["Camera"] == CAMERAS[0]
