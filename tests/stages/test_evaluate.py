@@ -19,17 +19,9 @@ from nsim.cli import main
 from nsim.config import configs_dir
 from nsim.context import RunContext
 from nsim.workspace.store import Store
+from tests.stages.micro import CAPTURE
+from tests.stages.micro import MICRO_SCENE as MICRO
 
-CAPTURE = ["width=64", "height=48", "n_frames=24", "supersample=1", "video=false"]
-MICRO = {
-    "field": {"hash_levels": 4, "hash_log2_table_size": 10, "hash_max_resolution": 128, "hidden_dim": 16,
-              "color_hidden_dim": 16, "color_hidden_layers": 1, "appearance_dim": 4, "sh_degree": 2, "backend": "torch"},
-    "sampler": {"proposal_samples": [16, 8], "final_samples": 8, "proposal_hash_levels": 3,
-                "proposal_hash_log2_table_size": 10, "proposal_hash_max_resolutions": [32, 64], "proposal_hidden_dim": 8},
-    "optim": {"steps": 30, "rays_per_batch": 128, "num_threads": 1},
-    "output": {"log_every": 10, "checkpoint_every": 100, "eval_views": 1, "final_eval_views": 1,
-               "occupancy_cell_m": 0.3, "obstacle_cell_m": 0.25},
-}
 SPOT = configs_dir() / "robots" / "spot.yaml"
 CAMERAS = ("frontleft", "left", "back")
 HELDOUT = [0, 8, 16]  # train-scene tiny holds out every 8th of the 24 frames
