@@ -2,7 +2,8 @@
 
     python bench/train_human.py [--quick] [--workspace DIR] [--steps N] [--threads 2]
 
-Full run: ``nsim capture synth --actor`` at 160x120 with 150 frames (ground-truth poses; the
+Full run: ``nsim capture synth --actor`` at the capture's default size, 320x240 with 150 frames
+(``--width/--height`` for a smaller run; ground-truth poses; the
 camera follows a person walking through robot-lab), then ``nsim train-human`` with the
 ``default`` preset over the capture's background images. ``--quick``: 96x72, 24 frames, the
 ``tiny`` preset with 100 steps. Frames ``i % holdout_every == 0`` are held out: new poses from
@@ -31,12 +32,15 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--workspace", type=Path, default=None)
     ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--width", type=int, default=None, help="capture width (default: the capture's 320; 96 quick)")
+    ap.add_argument("--height", type=int, default=None, help="capture height (default: the capture's 240; 72 quick)")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default 2, 1 with --quick)")
     args = ap.parse_args()
     q = args.quick
     threads = args.threads or (1 if q else 2)
-    cap_over = ["actor=true", "video=false"] + (["width=96", "height=72", "n_frames=24"] if q else
-                                                 ["width=160", "height=120", "n_frames=150"])
+    cap_over = ["actor=true", "video=false"] + (["width=96", "height=72", "n_frames=24"] if q else ["n_frames=150"])
+    cap_over += [f"width={args.width}"] if args.width else []
+    cap_over += [f"height={args.height}"] if args.height else []
     steps = args.steps or (100 if q else None)
     th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else [])
     with tempfile.TemporaryDirectory() as tmp:
@@ -65,7 +69,7 @@ def main() -> None:
           f"{m.get('psnr_box_baseline', float('nan')):12.2f} {m.get('psnr_box_background', float('nan')):11.2f}")
     print(json.dumps({"quick": q, "steps": cfg.optim.steps, "threads": threads, "capture_seconds": round(cap_s, 1),
                       "train_wall_seconds": round(wall, 1), "heldout_views": len(ev["views"]), "mean": m,
-                      "timing": timing}))
+                      "checkpoint_publish_timing": timing}))
 
 
 if __name__ == "__main__":

@@ -43,6 +43,8 @@ class SceneFieldConfig:
     appearance_dim: int = param(32, ge=0, le=256, help="per-image appearance embedding (NeRF-W); 0 disables")
     contract: bool = param(True, help="mip-NeRF 360 contraction beyond the scene box; false: the box fills the grid")
     backend: str = param("auto", choices=BACKENDS, help="hash encoding: torch, tcnn (CUDA) or auto")
+    density_bias: float = param(-1.0, ge=-20.0, le=20.0, help="sigma = exp(mlp + bias): sets the initial density "
+                                "(exp(-1) = 0.37/m; the grid sampler wants a clear start, e.g. -3: 0.05/m)")
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,7 @@ class SceneField(nn.Module):
         """``x_world (N, 3)`` -> ``sigma (N,)`` (1/m) and geometry features ``(N, geo_feat_dim)``."""
         unit = world_to_unit(x_world, self.aabb) if self.cfg.contract else box_to_unit(x_world, self.aabb)
         h = self.density_mlp(self.encoding(unit))
-        sigma = trunc_exp(h[..., 0].float() - 1.0)
+        sigma = trunc_exp(h[..., 0].float() + self.cfg.density_bias)
         return sigma, h[..., 1:]
 
     def appearance_codes(self, image_index: Tensor | None, n: int, appearance: str | int | Tensor = "mean",

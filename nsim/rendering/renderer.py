@@ -3,7 +3,8 @@
 Two ways to render the same model:
 
 ``method="proposal"``
-    The proposal sampler the model was trained with (``SceneModel.render_proposal``).
+    The sampler the model was trained with (``SceneModel.render``): its proposal networks,
+    or, for a model trained with ``sampler.kind: grid``, its training occupancy grid.
 ``method="march"``
     Ray marching with a constant step ``step_m`` from near to far, in blocks of
     ``block_steps`` samples, with early ray termination (a ray stops once its transmittance
@@ -159,7 +160,7 @@ def render_rays(model: SceneModel, rays: Rays, method: str = AUTO, grid: Occupan
         for a in range(0, len(rays), chunk):
             sub = rays[a : a + chunk]
             if method == "proposal":
-                outs.append(model.render_proposal(sub, appearance=appearance, return_samples=return_samples))
+                outs.append(model.render(sub, appearance=appearance, return_samples=return_samples))
             else:
                 outs.append(march(model, sub, grid, march_cfg, appearance, return_samples))
     return _concat(outs)

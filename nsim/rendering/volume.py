@@ -82,8 +82,15 @@ def distortion_loss(weights: Tensor, bins: Tensor) -> Tensor:
 
     ``sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 (s_{i+1} - s_i)`` with ``m`` the bin midpoints.
     """
-    mid = 0.5 * (bins[..., 1:] + bins[..., :-1])
-    width = bins[..., 1:] - bins[..., :-1]
+    return distortion_loss_intervals(weights, bins[..., :-1], bins[..., 1:])
+
+
+def distortion_loss_intervals(weights: Tensor, starts: Tensor, ends: Tensor) -> Tensor:
+    """:func:`distortion_loss` for intervals ``[starts, ends)`` ``(R, S)`` that need not touch
+    (e.g. marching samples with gaps where empty cells were skipped), ascending along each ray.
+    Zero-width padding intervals with zero weight add nothing."""
+    mid = 0.5 * (starts + ends)
+    width = ends - starts
     w_before = torch.cumsum(weights, dim=-1) - weights  # sum_{j<i} w_j
     wm_before = torch.cumsum(weights * mid, dim=-1) - weights * mid  # sum_{j<i} w_j m_j
     pairwise = 2.0 * (weights * (mid * w_before - wm_before)).sum(-1)  # mid ascending: |m_i - m_j| = m_i - m_j

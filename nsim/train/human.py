@@ -376,7 +376,7 @@ class HumanTrainer:
         s = self.background_model.sampler_cfg
         rays = make_rays(origins, dirs, s.near_m, s.far_m, self.background_model.aabb if s.clip_rays_to_box else None)
         with torch.no_grad():
-            return self.background_model.render_proposal(rays, return_samples=True).samples
+            return self.background_model.render(rays, return_samples=True).samples
 
     def render_rays(self, frames: Tensor, v: Tensor, u: Tensor, generator: torch.Generator | None = None):
         """Composite of the person over the background for pixels ``(frames, v, u)``: a

@@ -302,10 +302,10 @@ class SceneTrainer:
         self.cam_to_world = torch.as_tensor(data.cam_to_world, dtype=torch.float32, device=self.device)
         self.train_index = torch.as_tensor(self.train_ids, dtype=torch.long, device=self.device)
         self.depth_points = self._project_points() if cfg.loss.depth_weight > 0 else None
-        groups = [
-            {"params": list(self.model.field.parameters()), "lr": cfg.optim.lr_field, "name": "field"},
-            {"params": list(self.model.proposals.parameters()), "lr": cfg.optim.lr_proposal, "name": "proposal"},
-        ]
+        groups = [{"params": list(self.model.field.parameters()), "lr": cfg.optim.lr_field, "name": "field"}]
+        if len(self.model.proposals):
+            groups.append({"params": list(self.model.proposals.parameters()), "lr": cfg.optim.lr_proposal,
+                           "name": "proposal"})
         if self.pose_refine is not None:
             groups.append({"params": list(self.pose_refine.parameters()), "lr": cfg.optim.lr_pose, "name": "pose"})
         self.base_lr = [g["lr"] for g in groups]
@@ -404,30 +404,44 @@ class SceneTrainer:
         for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
             group["lr"] = base * scale
         self.model.train()
+        extra = {}
+        grid = cfg.sampler.kind == "grid"
+        if grid and step > 0 and step % cfg.sampler.grid_update_every == 0:
+            g_grid = torch.Generator().manual_seed(_step_seed(self.seed, step, "grid"))
+            with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
+                extra["grid_occupied"] = self.model.update_grid(g_grid, all_cells=step < cfg.sampler.grid_warmup_steps)
         rays, target, g = self.batch(step)
         anneal = self.anneal(step)
-        update_proposals = self.proposal_update(step)
+        update_proposals = self.proposal_update(step) and not grid
         with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
-            out = self.model.render_proposal(rays, generator=g, anneal=anneal, proposal_grad=update_proposals)
+            out = self.model.render(rays, generator=g, anneal=anneal, proposal_grad=update_proposals,
+                                    return_samples=grid and cfg.loss.distortion_weight > 0)
             mse = torch.mean((out.rgb.float() - target) ** 2)
             loss = mse
-            extra = {}
             if cfg.loss.interlevel_weight > 0 and update_proposals:
                 inter = volume.interlevel_loss(out.weights, out.bins, out.proposal_weights, out.proposal_bins)
                 loss = loss + cfg.loss.interlevel_weight * inter
                 extra["interlevel"] = float(inter.detach())
-            if cfg.loss.distortion_weight > 0:
+            if cfg.loss.distortion_weight > 0 and out.bins is not None:
                 dist = volume.distortion_loss(out.weights, out.bins)
                 loss = loss + cfg.loss.distortion_weight * dist
                 extra["distortion"] = float(dist.detach())
-            if cfg.loss.free_space_weight > 0 and step >= cfg.loss.free_space_start * cfg.optim.steps:
+            elif cfg.loss.distortion_weight > 0 and out.samples is not None:
+                # marching intervals, in the fraction of each ray's [near, far] (as the proposal bins are)
+                span = (rays.far - rays.near).clamp(min=1e-6)[:, None]
+                s0 = (out.samples.t_starts - rays.near[:, None]) / span
+                s1 = (out.samples.t_ends - rays.near[:, None]) / span
+                dist = volume.distortion_loss_intervals(out.weights, s0, s1)
+                loss = loss + cfg.loss.distortion_weight * dist
+                extra["distortion"] = float(dist.detach())
+            if cfg.loss.free_space_weight > 0 and not grid and step >= cfg.loss.free_space_start * cfg.optim.steps:
                 free = self.free_space_loss(rays, out, g)
                 loss = loss + cfg.loss.free_space_weight * free
                 extra["free_space"] = float(free.detach())
             if self.depth_points is not None:
                 d_rays, d_target = self.depth_batch(step)
                 g_d = torch.Generator().manual_seed(_step_seed(self.seed, step, "depth-jitter"))
-                d_out = self.model.render_proposal(d_rays, generator=g_d, anneal=anneal, proposal_grad=False)
+                d_out = self.model.render(d_rays, generator=g_d, anneal=anneal, proposal_grad=False)
                 d_loss = torch.mean(torch.abs(d_out.depth - d_target) / d_target)
                 loss = loss + cfg.loss.depth_weight * d_loss
                 extra["depth"] = float(d_loss.detach())
@@ -529,7 +543,7 @@ class SceneTrainer:
         origins, dirs = rays_from_pixels(dirs_cam, c2w)
         s = self.cfg.sampler
         rays = make_rays(origins, dirs, s.near_m, s.far_m, self.aabb.to(self.device) if s.clip_rays_to_box else None)
-        outs = [self.model.render_proposal(rays[k : k + chunk]) for k in range(0, h * w, chunk)]
+        outs = [self.model.render(rays[k : k + chunk]) for k in range(0, h * w, chunk)]
         z = dirs_cam[:, 2]
         cat = {name: torch.cat([getattr(o, name) for o in outs]) for name in ("rgb", "depth", "depth_median", "accumulation")}
         return {

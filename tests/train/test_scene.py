@@ -230,3 +230,22 @@ def test_export_repeats_byte_for_byte(tiny_data, tmp_path):
         files = sorted(p for p in (tmp_path / run).rglob("*") if p.is_file())
         digests.append({p.relative_to(tmp_path / run).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in files})
     assert digests[0] == digests[1]
+
+
+def test_grid_model_trains_resumes_and_reloads(tiny_data, tmp_path):
+    from nsim.rendering.model import load_model
+    from nsim.train.scene import export_scene, train_scene
+
+    cfg = micro_cfg(sampler={"kind": "grid", "grid_cell_m": 0.25, "grid_update_every": 2, "grid_warmup_steps": 4},
+                    loss={"distortion_weight": 0.01})
+    whole = train_scene(tiny_data, cfg, tmp_path / "whole", seed=2)
+    assert len(whole.model.proposals) == 0 and whole.model.grid_occupied.float().mean() < 1.0
+    assert all("distortion" in h for h in whole.trainer.history)
+    train_scene(tiny_data, cfg, tmp_path / "part", seed=2, stop_after=5)
+    resumed = train_scene(tiny_data, cfg, tmp_path / "part", seed=2)
+    assert resumed.resumed_from == 3
+    for (k, va), (_, vb) in zip(whole.model.state_dict().items(), resumed.model.state_dict().items(), strict=True):
+        assert torch.equal(va, vb), k
+    export_scene(tmp_path / "out", whole)
+    back = load_model(tmp_path / "out")
+    assert back.sampler_cfg.kind == "grid" and torch.equal(back.grid_occupied, whole.model.grid_occupied.cpu())
