@@ -18,7 +18,24 @@ Measures, with the same renderer the stage uses (marching + occupancy grid):
    poses: a per-camera PSNR / SSIM / depth AbsRel table (the paper's Table III reached
    9.4-11.8 dB on its real Spot);
 4. speed: camera and LiDAR rays/s in-process on 2 cores, and the wall time of the same render
-   on Ray with 2 workers against 1.
+   on Ray with 2 workers against 1;
+5. culling (``render.culling``): a human checkpoint (``--human REF``, else trained here through
+   ``train_human`` on a ``capture synth --actor`` capture; ``--quick``: a 48x64 capture and 20
+   steps), and two copies of the ``spot_run`` trajectory with every person moved to a fixed
+   place in the robot's body frame at every tick: (a) 3-4.5 m *behind* the robot, rendered with
+   Spot's two front cameras (checked: ``HumanSet.visible`` with culling returns nobody for any
+   frame and sensor, and the human NeRF is never called); (b) 2.5-4 m *in front*, rendered with
+   the front cameras and the LiDAR (checked: the people change the output; one tick with
+   ``--quick``). The same frames
+   are rendered by the stage with ``culling: true``, ``false`` and without human checkpoints;
+   for (a) after one warm-up run, in rotating order, best of ``--culling-reps`` (3; 2 quick) at camera
+   scale ``--culling-scale`` (default ``--image-scale``); every rendered file is compared
+   (decoded arrays with ``np.array_equal``, NaN = NaN, and bytes). Reported: the stage's wall
+   time both ways and the speed-up, where the time goes (``HumanSet.visible``, the scene's
+   ``render_rays``, the human NeRF, the merge in ``HumanSet.composite``, the rest of the stage),
+   and whether the outputs are identical. (A 360-degree LiDAR sees a person on the floor at
+   any azimuth and distance, since culling tests the ray against the box without a range limit,
+   so nobody is out of view of Spot's whole rig: hence the front cameras for (a).)
 
 Prints tables and one JSON object on the last line.
 """
@@ -172,6 +189,289 @@ def score_spot(ctx: RunContext, art_id: str, oracle) -> dict:
     return {"cameras": out, "lidar": lidar, "ticks": len(meta["frames"])}
 
 
+# ---------------------------------------------------------------------------------- culling
+CULL_BEHIND = ((-3.0, -1.5), (-3.5, -0.5), (-3.0, 0.5), (-3.5, 1.5), (-4.5, 0.0))  # body frame (x fwd, y left), m
+CULL_FRONT = ((2.5, -0.8), (3.0, 0.0), (2.5, 0.8), (3.5, -1.5), (4.0, 1.2))
+FRONT_CAMERAS = ("frontleft", "frontright")
+
+
+def get_human(ctx: RunContext, human: str | None, quick: bool) -> tuple[str, float]:
+    """A human checkpoint: ``--human REF``, else ``capture synth --actor`` + ``train_human`` (tiny preset)."""
+    from nsim.stages import train_human
+
+    if human is not None:
+        return ctx.store.resolve(human, kind="human-checkpoint"), 0.0
+    t0 = time.perf_counter()
+    size = ["width=48", "height=64", "n_frames=16", "supersample=1"] if quick else ["width=96", "height=72", "n_frames=24"]
+    cap_cfg = load_config(capture.Config, stage="capture", preset="default", overrides=["actor=true", "video=false", *size])
+    cap_id = capture.run(capture.Inputs(), cap_cfg, ctx).capture
+    over = ["optim.num_threads=2"]
+    if quick:  # a few steps: the person's density only has to be non-zero; previews kept tiny
+        over += ["optim.steps=20", "optim.rays_per_batch=256", "output.preview_views=1", "output.preview_width=16",
+                 "output.preview_height=24", "output.gait_frames=2", "output.eval_views=1"]
+    cfg = load_config(train_human.Config, stage="train_human", preset="tiny", overrides=over)
+    out = train_human.run(train_human.Inputs(capture=cap_id), cfg, ctx)
+    wall = time.perf_counter() - t0
+    print(f"human checkpoint: actor capture + train-human ({cfg.optim.steps} steps) in {wall:.0f} s"
+          f"{' (cached)' if out.cache_hit else ''}", flush=True)
+    return out.human, wall
+
+
+def placed_trajectory(ctx: RunContext, traj: str, offsets, tag: str) -> str:
+    """``traj`` with person k at ``offsets[k % len]`` in the robot's body frame at every tick, facing the
+    robot (a ``trajectory`` artifact in the ``nsim simulate`` format: the render stage reads it as is)."""
+    import hashlib
+
+    store = ctx.store
+    a = dict(np.load(store.get(traj).file("trajectory.npz"), allow_pickle=False))
+    poses = a["robot_pose_se3"]
+    n_people = a["position_m"].shape[1]
+    if n_people == 0:
+        raise RuntimeError(f"trajectory {traj[:12]} has no people to place")
+    off = np.array([offsets[k % len(offsets)] for k in range(n_people)], dtype=np.float64)  # (N, 2)
+    world = np.einsum("tij,nj->tni", poses[:, :2, :2], off) + poses[:, None, :2, 3]
+    yaw = np.arctan2(poses[:, 1, 0], poses[:, 0, 0])
+    a["position_m"] = world
+    a["velocity_mps"] = np.zeros_like(a["velocity_mps"])
+    a["heading_rad"] = np.broadcast_to(yaw[:, None] + np.pi, a["heading_rad"].shape).copy()
+    key = hashlib.sha256(f"bench.render.culling:{traj}:{tag}:{off.tolist()}".encode()).hexdigest()
+    if (hit := store.lookup(key)) is not None:
+        return hit.id
+    with store.publish(kind="trajectory", stage="bench_render_culling", version=1, key=key,
+                       config={"placement": tag, "body_frame_offsets_m": off.tolist()}, inputs={"trajectory": traj},
+                       seed=ctx.seed) as out:
+        np.savez(out.dir / "trajectory.npz", **a)
+    return out.ref
+
+
+def visible_people(ctx: RunContext, traj: str, human: str, frames: list[dict], rig) -> dict[str, list[int]]:
+    """``{"tick/sensor": [people]}`` that ``HumanSet.visible`` (culling on) keeps, with the rays the stage casts."""
+    import torch
+
+    store = ctx.store
+    hs = render.HumanSet.load([str(store.get(human).path)], str(store.get(traj).file("trajectory.npz")),
+                              torch.device("cpu"))
+    seen = {}
+    for f in frames:
+        body = np.asarray(f["body_to_world"], dtype=np.float64)
+        for s in rig.sensors:
+            o, d = s.rays(body)
+            valid = np.isfinite(d).all(-1)
+            o = torch.as_tensor(np.array(o, dtype=np.float32))
+            d = torch.as_tensor(np.where(valid[:, None], d, [0.0, 0.0, 1.0]), dtype=torch.float32)
+            cam, c2w = (s.camera, s.world_pose(body)) if s.type == "camera" else (None, None)
+            seen[f"{f['index']}/{s.name}"] = [p["k"] for p in hs.visible(f["index"], o, d, cam, c2w, True)]
+    return seen
+
+
+def _decode(path: Path):
+    from nsim.io.coco import read_instance_mask
+    from nsim.io.exr import read_exr
+    from nsim.io.images import read_image
+
+    if path.suffix == ".exr":
+        return read_exr(path)
+    if path.suffix == ".png":
+        return read_instance_mask(path) if path.parent.name == "mask" else read_image(path)
+    return None  # .ply / .json: bytes only
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+def compare_renders(ctx: RunContext, ref_a: str, ref_b: str, humans_only: bool = False,
+                    limit: int | None = 8) -> dict:
+    """Every file under the sensors' folders of two render artifacts: decoded arrays equal (PNG, EXR:
+    np.array_equal, NaN = NaN; PLY, JSON: bytes) and bytes equal. ``humans_only``: skip what only a
+    render with humans writes (masks, boxes.json), to compare with a render without human checkpoints.
+    ``images_identical``: the cameras' files only; ``channel_max_abs_diff``: per differing EXR channel."""
+    art_a, art_b = ctx.store.get(ref_a), ctx.store.get(ref_b)
+    sensors = json.loads(art_a.file("render.json").read_text())["sensors"]
+    cameras = {s["name"] for s in sensors if s["type"] == "camera"}
+
+    def files(art):
+        out = {}
+        for s in sensors:
+            for p in sorted((art.path / s["name"]).rglob("*")):
+                rel = p.relative_to(art.path).as_posix()
+                if p.is_file() and not (humans_only and ("/mask/" in rel or rel.endswith("boxes.json"))):
+                    out[rel] = p
+        return out
+
+    fa, fb = files(art_a), files(art_b)
+    differ_arrays, differ_bytes, channels = [], [], {}
+    for rel in sorted(set(fa) & set(fb)):
+        same_bytes = fa[rel].read_bytes() == fb[rel].read_bytes()
+        if not same_bytes:
+            differ_bytes.append(rel)
+        da, db = _decode(fa[rel]), _decode(fb[rel])
+        if (da is None and not same_bytes) or (da is not None and not _same(da, db)):
+            differ_arrays.append(rel)
+        if isinstance(da, dict) and da.keys() == db.keys():
+            for ch in da:
+                x, y = da[ch], db[ch]
+                if x.shape == y.shape and not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
+                    both = np.isfinite(x) & np.isfinite(y) if x.dtype.kind == "f" else np.ones(x.shape, bool)
+                    d = float(np.abs(x[both].astype(np.float64) - y[both]).max()) if both.any() else float("inf")
+                    key = f"{rel.split('/')[0]}:{ch}"
+                    channels[key] = max(channels.get(key, 0.0), d)
+    missing = sorted(set(fa) ^ set(fb))
+    on_camera = [r for r in missing + differ_arrays if r.split("/")[0] in cameras]
+    return {"files": len(set(fa) & set(fb)), "only_in_one": missing[:limit], "arrays_differ": differ_arrays[:limit],
+            "bytes_differ": differ_bytes[:limit], "channel_max_abs_diff": channels,
+            "identical": not missing and not differ_arrays and bool(fa),
+            "images_identical": not on_camera and any(r.split("/")[0] in cameras for r in fa),
+            "bytes_identical": not missing and not differ_bytes and bool(fa)}
+
+
+class _Meter:
+    """Wall time and calls, while active, of the stage's human hooks (``HumanSet.visible`` / ``composite``),
+    the human NeRF (``HumanModel.render_samples``) and the scene renderer (``render_rays``)."""
+
+    def __init__(self) -> None:
+        from nsim.human.nerf import HumanModel
+        from nsim.rendering import renderer
+
+        self.targets = [(render.HumanSet, "visible"), (render.HumanSet, "composite"), (HumanModel, "render_samples"),
+                        (renderer, "render_rays")]
+        self.real = {}
+        self.reset()
+
+    def reset(self) -> None:
+        self.seconds = {name: 0.0 for _, name in self.targets}
+        self.calls = {name: 0 for _, name in self.targets}
+
+    def __enter__(self):
+        for owner, name in self.targets:
+            real = owner.__dict__[name]
+            self.real[(owner, name)] = real
+
+            def timed(*a, _real=real, _name=name, **k):
+                t0 = time.perf_counter()
+                try:
+                    return _real(*a, **k)
+                finally:
+                    self.seconds[_name] += time.perf_counter() - t0
+                    self.calls[_name] += 1
+
+            setattr(owner, name, timed)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for (owner, name), real in self.real.items():
+            setattr(owner, name, real)
+
+
+def culling_bench(ctx: RunContext, traj: str, scene_id: str, human: str, args) -> dict:
+    import torch
+
+    from nsim.sensors.rig import Rig
+
+    behind = placed_trajectory(ctx, traj, CULL_BEHIND, "behind")
+    front = placed_trajectory(ctx, traj, CULL_FRONT, "front")
+
+    def cfg(culling: bool, sensors: tuple[str, ...], scale: float, ticks: int = args.ticks):
+        return from_dict(render.Config, {
+            "tick_stride": args.tick_stride, "max_frames": ticks, "image_scale": scale,
+            "lidar_azimuth_scale": args.lidar_scale, "noise": False, "video": False, "sensors": list(sensors),
+            "shard_frames": ticks, "method": args.method, "march": {"step_m": args.march_step}, "culling": culling})
+
+    meter = _Meter()
+
+    def stage(tr: str, culling: bool, sensors, scale: float, humans: tuple[str, ...], ticks: int = args.ticks) -> dict:
+        ctx.force = True  # timed: render even if an earlier run is cached
+        meter.reset()
+        t0, c0 = time.perf_counter(), time.process_time()
+        with meter:
+            out = render.run(render.Inputs(trajectory=tr, scene=scene_id, rig=SPOT, humans=humans),
+                             cfg(culling, sensors, scale, ticks), ctx)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        ctx.force = False
+        return {"render": out.render, "wall_s": wall, "cpu_s": cpu, "seconds": dict(meter.seconds),
+                "calls": dict(meter.calls)}
+
+    res: dict = {"human": human, "scale": args.culling_scale, "ticks": args.ticks}
+    # (a) out of view: behind the robot, Spot's front cameras
+    probe = cfg(True, FRONT_CAMERAS, args.culling_scale)
+    inputs = render.resolve_inputs(render.Inputs(trajectory=behind, scene=scene_id, rig=SPOT), ctx)
+    frames = render.plan_frames(inputs, probe, ctx)
+    rig_a = render.adapt_rig(Rig.load(SPOT), probe)
+    seen = visible_people(ctx, behind, human, frames, rig_a)
+    res["people"] = int(np.load(ctx.store.get(behind).file("trajectory.npz"))["position_m"].shape[1])
+    if any(seen.values()):
+        raise RuntimeError(f"culling bench: people meant to be out of view are visible: {seen}")
+    stage(behind, True, FRONT_CAMERAS, args.culling_scale, (human,))  # warm-up (first-call allocations), not timed
+    runs: dict[str, list[dict]] = {"culled": [], "unculled": [], "no_humans": []}
+    for rep in range(args.culling_reps):  # side by side, the order rotating
+        modes = ("culled", "unculled", "no_humans")
+        for mode in modes[rep % 3:] + modes[: rep % 3]:
+            runs[mode].append(stage(behind, mode != "unculled", FRONT_CAMERAS, args.culling_scale,
+                                    () if mode == "no_humans" else (human,)))
+    best = {m: min(r, key=lambda x: x["wall_s"]) for m, r in runs.items()}
+
+    def breakdown(run: dict) -> dict:
+        sec = run["seconds"]
+        out = {"visible_s": sec["visible"], "scene_render_rays_s": sec["render_rays"],
+               "human_render_samples_s": sec["render_samples"]}
+        # composite = the scene's render_rays (with samples) + every person's render_samples + the merge
+        out["merge_and_composite_s"] = max(0.0, sec["composite"] - sec["render_samples"]
+                                           - (sec["render_rays"] if sec["composite"] else 0.0))
+        out["rest_of_stage_s"] = run["wall_s"] - sec["visible"] - sec["render_rays"] - sec["render_samples"] \
+            - out["merge_and_composite_s"]
+        return out
+
+    a = {"sensors": list(FRONT_CAMERAS), "frames": len(frames), "visible_with_culling": 0,
+         "rays": sum(int(np.prod(s.ray_shape)) for s in rig_a.sensors) * len(frames),
+         **{f"{m}_s": best[m]["wall_s"] for m in best},
+         **{f"{m}_all_s": [r["wall_s"] for r in runs[m]] for m in runs},
+         **{f"{m}_cpu_s": min(r["cpu_s"] for r in runs[m]) for m in runs},
+         "breakdown": {m: breakdown(best[m]) for m in best},
+         "human_nerf_calls_culled": max(r["calls"]["render_samples"] for r in runs["culled"]),
+         "human_nerf_calls_unculled": best["unculled"]["calls"]["render_samples"]}
+    a["speedup"] = a["unculled_s"] / a["culled_s"]
+    a["speedup_cpu"] = a["unculled_cpu_s"] / a["culled_cpu_s"]  # process CPU time: less hurt by a shared machine
+    a["culled_over_no_humans"] = a["culled_s"] / a["no_humans_s"]
+    a["unculled_over_no_humans"] = a["unculled_s"] / a["no_humans_s"]
+    a["culled_vs_unculled"] = compare_renders(ctx, best["culled"]["render"], best["unculled"]["render"])
+    a["culled_vs_no_humans"] = compare_renders(ctx, best["culled"]["render"], best["no_humans"]["render"], True)
+    a["identical"] = a["culled_vs_unculled"]["identical"] and a["culled_vs_no_humans"]["identical"]
+    res["out_of_view"] = a
+
+    # (b) in view: in front of the robot; the front cameras and the LiDAR
+    names = (*FRONT_CAMERAS, "lidar")
+    ticks_b = 1 if args.quick else args.ticks  # in view, the human NeRF dominates: one tick is enough to compare
+    b: dict = {"sensors": list(names), "scale": args.culling_scale, "ticks": ticks_b}
+    done = {}
+    for mode in ("culled", "unculled", "no_humans"):
+        humans = () if mode == "no_humans" else (human,)
+        try:
+            done[mode] = stage(front, mode != "unculled", names, args.culling_scale, humans, ticks_b)
+        except RuntimeError as exc:  # the stage failed (e.g. .numpy() on a tensor that requires grad)
+            if "requires grad" not in str(exc):
+                raise
+            b.setdefault("stage_error", f"{type(exc).__name__}: {exc}".splitlines()[0])
+            b["workaround"] = "rendered under torch.no_grad() by this bench"
+            with torch.no_grad():
+                done[mode] = stage(front, mode != "unculled", names, args.culling_scale, humans, ticks_b)
+    for mode in done:
+        b[f"{mode}_s"] = done[mode]["wall_s"]
+    meta = json.loads(ctx.store.get(done["culled"]["render"]).file("render.json").read_text())
+    b["people_px"] = sum(int(v.get("people_px", 0)) for row in meta["per_frame"] for v in row.values()
+                         if isinstance(v, dict))
+    b["human_nerf_calls_culled"] = done["culled"]["calls"]["render_samples"]
+    b["culled_vs_unculled"] = compare_renders(ctx, done["culled"]["render"], done["unculled"]["render"])
+    # not vacuous: the people change what the sensors see
+    b["files_changed_by_people"] = len(compare_renders(ctx, done["culled"]["render"], done["no_humans"]["render"],
+                                                       True, limit=None)["arrays_differ"])
+    b["identical"] = b["culled_vs_unculled"]["identical"]
+    b["images_identical"] = b["culled_vs_unculled"]["images_identical"]
+    res["in_view"] = b
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -184,12 +484,19 @@ def main() -> None:
     ap.add_argument("--no-ray", action="store_true", help="skip the Ray 1-vs-2 worker timing")
     ap.add_argument("--method", default="proposal", choices=("proposal", "march"), help="renderer for the Spot run")
     ap.add_argument("--march-step", type=float, default=0.02, help="march step (m) where marching is measured")
+    ap.add_argument("--no-culling", action="store_true", help="skip the culling section")
+    ap.add_argument("--human", default=None, help="human checkpoint for the culling section (default: train one)")
+    ap.add_argument("--culling-scale", type=float, default=None,
+                    help="camera scale of the culling section (default: --image-scale)")
+    ap.add_argument("--culling-reps", type=int, default=None, help="timed repetitions per mode (default 3, 2 quick)")
     args = ap.parse_args()
     q = args.quick
     args.ticks = args.ticks or (2 if q else 12)
     args.tick_stride = args.tick_stride or 10
     args.image_scale = args.image_scale or (0.1 if q else 0.5)
     args.lidar_scale = args.lidar_scale or (0.05 if q else 0.5)
+    args.culling_scale = args.culling_scale or args.image_scale
+    args.culling_reps = args.culling_reps or (2 if q else 3)
     import torch
 
     torch.set_num_threads(2)
@@ -243,6 +550,20 @@ def main() -> None:
             _, w1 = spot_render(ctx, traj, scene_id, args, cams[:2], EngineConfig(engine="ray", workers=1), force=True)
             _, w2 = spot_render(ctx, traj, scene_id, args, cams[:2], EngineConfig(engine="ray", workers=2), force=True)
             results["ray"] = {"one_worker_s": w1, "two_workers_s": w2, "speedup": w1 / w2}
+        if not args.no_culling:
+            human_id, human_s = get_human(ctx, args.human, q)
+            results["culling"] = {"human_train_s": human_s, **culling_bench(ctx, traj, scene_id, human_id, args)}
+            cu = results["culling"]
+            results.update({
+                "culling_out_of_view_culled_s": cu["out_of_view"]["culled_s"],
+                "culling_out_of_view_unculled_s": cu["out_of_view"]["unculled_s"],
+                "culling_out_of_view_no_humans_s": cu["out_of_view"]["no_humans_s"],
+                "culling_out_of_view_speedup": cu["out_of_view"]["speedup"],
+                "culling_out_of_view_speedup_cpu": cu["out_of_view"]["speedup_cpu"],
+                "culling_out_of_view_identical": cu["out_of_view"]["identical"],
+                "culling_in_view_identical": cu["in_view"]["identical"],
+                "culling_in_view_images_identical": cu["in_view"]["images_identical"],
+            })
 
     sp = results["spot"]
     print()
@@ -259,6 +580,34 @@ def main() -> None:
     if "ray" in results:
         r = results["ray"]
         print(f"Ray: 1 worker {r['one_worker_s']:.1f} s, 2 workers {r['two_workers_s']:.1f} s (x{r['speedup']:.2f})")
+    if "culling" in results:
+        cu = results["culling"]
+        a, b = cu["out_of_view"], cu["in_view"]
+        print()
+        print(f"culling: {cu['people']} people, {a['frames']} ticks of spot_run, cameras x{cu['scale']}, the same frames "
+              f"both ways; (a) best of {len(a['culled_all_s'])} alternating runs")
+        print(f"{'case':<46} {'culled s':>9} {'unculled s':>11} {'speed-up':>9} {'identical':>10}")
+        print(f"{'(a) behind the robot: ' + '+'.join(a['sensors']):<46} {a['culled_s']:9.2f} {a['unculled_s']:11.2f} "
+              f"{a['speedup']:9.2f} {str(a['identical']):>10}")
+        label_b = f"(b) in front, {b['ticks']} tick(s): " + "+".join(b["sensors"])
+        print(f"{label_b:<46} {b['culled_s']:9.2f} {b['unculled_s']:11.2f} "
+              f"{b['unculled_s'] / b['culled_s']:9.2f} {str(b['identical']):>10}")
+        print(f"(a) process CPU time: culled {a['culled_cpu_s']:.2f} s, unculled {a['unculled_cpu_s']:.2f} s "
+              f"(x{a['speedup_cpu']:.2f}), without human checkpoints {a['no_humans_cpu_s']:.2f} s")
+        print(f"(a) without human checkpoints {a['no_humans_s']:.2f} s (culled / none x{a['culled_over_no_humans']:.2f}, "
+              f"unculled / none x{a['unculled_over_no_humans']:.2f}); human NeRF calls: culled "
+              f"{a['human_nerf_calls_culled']}, unculled {a['human_nerf_calls_unculled']}")
+        print(f"{'(a) where the time goes, s':<28} {'visible':>8} {'scene':>8} {'human':>8} {'merge':>8} {'rest':>8}")
+        for m, row in a["breakdown"].items():
+            print(f"{m:<28} {row['visible_s']:8.2f} {row['scene_render_rays_s']:8.2f} {row['human_render_samples_s']:8.2f} "
+                  f"{row['merge_and_composite_s']:8.2f} {row['rest_of_stage_s']:8.2f}")
+        diff = b["culled_vs_unculled"]
+        if not diff["identical"]:
+            print(f"(b) culled vs unculled: differing files {diff['arrays_differ']}; max |difference| per channel "
+                  f"{diff['channel_max_abs_diff']}; camera images identical: {diff['images_identical']}")
+        print(f"(b) people cover {b['people_px']} mask px and change {b['files_changed_by_people']} of "
+              f"{b['culled_vs_unculled']['files']} files against a render without them"
+              + (f"; the stage failed ({b['stage_error']}), {b['workaround']}" if "stage_error" in b else ""))
     print(json.dumps({"quick": q, "image_scale": args.image_scale, **results}, default=lambda o: to_dict(o)))
 
 

@@ -564,8 +564,9 @@ class HumanSet:
             owners = [torch.zeros_like(parts[0].sigma, dtype=torch.long)]
             for p in people:
                 m = p["mask"][idx]
-                hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
-                                               sub.near, sub.far)
+                with torch.no_grad():  # the model's parameters require grad; rendering needs none
+                    hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
+                                                   sub.near, sub.far)
                 sig = torch.where(m[:, None], hs.sigma, 0.0)
                 parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
                 owners.append(torch.full_like(sig, p["k"] + 1, dtype=torch.long))

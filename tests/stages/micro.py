@@ -21,3 +21,19 @@ def micro_scene(**sections) -> dict:
     for k, v in sections.items():
         out.setdefault(k, {}).update(v)
     return out
+
+
+def capture_and_micro_scene(root, ws) -> None:
+    """Through the CLI: the micro capture tagged ``capture/t`` and a micro scene trained on it, ``scene/t``."""
+    import yaml
+
+    from nsim.cli import main
+
+    args = ["--workspace", str(ws), "capture", "synth"]
+    for kv in CAPTURE:
+        args += ["--set", kv]
+    assert main([*args, "--tag", "capture/t"]) == 0
+    cfg_file = root / "micro.yaml"
+    cfg_file.write_text(yaml.safe_dump(MICRO_SCENE))
+    assert main(["--workspace", str(ws), "--device", "cpu", "train-scene", "--poses", "capture/t", "--preset", "tiny",
+                 "--config", str(cfg_file), "--tag", "scene/t"]) == 0

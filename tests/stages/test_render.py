@@ -7,14 +7,12 @@ import json
 
 import numpy as np
 import pytest
-import yaml
 
 from nsim.cli import main
 from nsim.config import configs_dir, from_dict
 from nsim.context import RunContext
 from nsim.workspace.store import Store
-from tests.stages.micro import CAPTURE
-from tests.stages.micro import MICRO_SCENE as MICRO
+from tests.stages.micro import capture_and_micro_scene
 
 SPOT = configs_dir() / "robots" / "spot.yaml"
 RGBD = configs_dir() / "robots" / "pinhole-rgbd.yaml"
@@ -25,14 +23,7 @@ def world(tmp_path_factory):
     """A workspace with a capture, a micro scene checkpoint and a short Spot run in that scene."""
     root = tmp_path_factory.mktemp("render")
     ws = root / "ws"
-    args = ["--workspace", str(ws), "capture", "synth"]
-    for kv in CAPTURE:
-        args += ["--set", kv]
-    assert main([*args, "--tag", "capture/t"]) == 0
-    cfg_file = root / "micro.yaml"
-    cfg_file.write_text(yaml.safe_dump(MICRO))
-    assert main(["--workspace", str(ws), "--device", "cpu", "train-scene", "--poses", "capture/t", "--preset", "tiny",
-                 "--config", str(cfg_file), "--tag", "scene/t"]) == 0
+    capture_and_micro_scene(root, ws)
     sc_args = ["--workspace", str(ws), "simulate", "--preset", "tiny", "--set", "max_duration_s=2.0"]
     assert main([*sc_args, "--scenario", str(configs_dir() / "scenarios" / "spot_run.json"), "--tag", "trajectory/t"]) == 0
     store = Store(ws)
