@@ -2,8 +2,10 @@
 
 ``pipelines/paper.py --size tiny`` takes several minutes on 2 CPU cores (five rooms, each trained),
 over the 3 minutes a test may take, so this runs the same ``run_paper`` chain on one room with
-the stages cut further (30 training steps, two held-out frames, three Spot ticks by three cameras)
-and checks that every table comes out, from the artifacts the pipeline tags.
+the stages cut further (30 training steps, two held-out frames, a 12-frame actor capture and 60
+steps of train-human, three Spot ticks by three cameras, rendered with the run's people) and checks
+that every table comes out, the detection table with people on both sides, from the artifacts the
+pipeline tags.
 """
 
 from __future__ import annotations
@@ -45,8 +47,12 @@ def test_paper_subset_prints_every_table(tmp_path, monkeypatch):
         "train_scene": ("tiny", MICRO_TRAIN),
         "heldout": ("tiny", ["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=2"]),
         "simulate": ("tiny", ["max_duration_s=2.0", "video=false"]),
+        "actor": ("tiny", ["actor=true", "n_frames=12", "supersample=1", "video=false"]),
+        "train_human": ("tiny", ["optim.steps=60"]),
         "spot": ("tiny", ["sensors=[frontleft,left,back]"]),
+        "detection": None,
         "evaluate": ("tiny", ["lpips_net=none"]),
+        "evaluate_detection": ("tiny", ["lpips_net=none"]),
     }
     monkeypatch.setitem(paper.SIZES, "micro", micro)
     monkeypatch.setattr(paper, "ROOMS", ("robot-lab",))
@@ -59,13 +65,21 @@ def test_paper_subset_prints_every_table(tmp_path, monkeypatch):
     assert [r["Camera"] for r in tables["spot-rgb"].rows] == ["frontleft", "left", "back"]
     assert [r["Camera"] for r in tables["spot-depth"].rows] == ["frontleft", "left", "back"]
     assert tables["slam"].rows[0]["Sequence"] == "left"
+    detection = tables["detection"]
+    assert [r["Scene"] for r in detection.rows] == ["frontleft", "left", "back", "all"]
+    assert all(isinstance(r["boxes sim"], int) and isinstance(r["boxes real"], int) for r in detection.rows)
+    seen = paper.people_in_view(Store(tmp_path / "ws"), "render/paper-spot-run")
+    assert seen[0] > 0 and seen[1] == 9
+    notes = " ".join(detection.notes)
+    assert "people in view" in notes and "dressed like the actor" in notes
     for name in tables:
         assert (out / f"{name}.md").read_text().startswith("### ")
     store = Store(tmp_path / "ws")
     ids = json.loads((out / "artifacts.json").read_text())
     assert {store.get(i).kind for i in ids.values()} == {"evaluation"}
     for ref in ("capture/paper-robot-lab", "scene/paper-robot-lab", "render/paper-heldout-robot-lab",
-                "render/paper-spot-run", "evaluation/paper-slam"):
+                "capture/paper-actor-robot-lab", "human/paper-robot-lab", "render/paper-spot-run",
+                "evaluation/paper-slam", "evaluation/paper-detection"):
         assert store.resolve(ref)
     # a rerun is all cache hits
     before = store.all_ids()

@@ -24,9 +24,15 @@ table compares what the simulator rendered with a ground truth found through the
     on the oracle's ("real") frames at the same poses; both ATEs against the camera's poses. A
     side where SfM fails is n/a with the reason.
 ``detection``
-    People detected (OpenCV HOG, an ONNX model, or COCO JSON given) on the simulated frames and on
-    the oracle's frames with the same people (test-room actors posed like the simulated ones);
-    matched-box IoU, precision, recall. A render without people is n/a with the reason.
+    Trajectory-mode renders with people (``--humans``). People detected (OpenCV HOG, an ONNX model,
+    or COCO JSON given) on the simulated frames and on the oracle's frames at the same camera poses
+    with the same people: test-room actors posed like the simulated ones (the run's positions,
+    headings, gait phases and heights, through the render's skeleton and gait loop) and dressed
+    like the actor each human checkpoint was trained from (its actor capture's ``actor_seed``).
+    Frames are turned upright by quarter turns first (``detection.upright``: Spot's front cameras
+    are rolled ~90 deg). Matched-box IoU, precision, recall; per frame (records.json) the person
+    pixels of the render's mask and of the oracle's and their IoU, summed up in the notes. A render
+    without people is n/a with the reason.
 
 Artifact layout::
 
@@ -89,6 +95,8 @@ class DetectionConfig:
     iou_threshold: float = param(0.5, gt=0.0, le=1.0, help="a simulated box matches a real one at this IoU")
     hog_upscale: float = param(2.0, gt=0.0, le=8.0, help="enlarge images first (the HOG window is 64x128 px)")
     hog_hit_threshold: float = param(0.0, help="HOG SVM margin below which windows are dropped")
+    upright: bool = param(True, help="turn each camera's frames by quarter turns so the world's up is up before "
+                                     "detecting (Spot's front cameras are rolled ~90 deg, its right one upside down)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -230,8 +238,10 @@ class RenderData:
 
     @property
     def humans(self) -> list[str]:
+        """The human checkpoints in the render's order (person k is drawn by ``humans[k % len]``)."""
         ids = self.manifest["inputs"]
-        return [ids[k] for k in sorted(ids) if k.startswith("human")]
+        keys = [k for k in ids if k.startswith("human") and k[5:].isdigit()]
+        return [ids[k] for k in sorted(keys, key=lambda k: int(k[5:]))]
 
     def file(self, rel: str) -> Path:
         p = self.path / rel
@@ -415,8 +425,27 @@ class Evaluator:
             raise InputError(f"render {r.short}: its rig has no camera with {want} output")
         return cams
 
+    def actor_seeds(self, r: RenderData) -> list[int | None]:
+        """Per human checkpoint of the render: the appearance seed of the test-room actor it was trained
+        from (its actor capture's ``poses.json`` meta ``actor_seed``), or None (trained from a data folder)."""
+        seeds: list[int | None] = []
+        for h in r.humans:
+            cap = self.store.get(h).manifest.get("inputs", {}).get("capture")
+            seed = None
+            if cap is not None:
+                poses = self.store.get(cap).path / "poses.json"
+                if poses.is_file():
+                    seed = json.loads(poses.read_text()).get("meta", {}).get("actor_seed")
+            seeds.append(int(seed) if isinstance(seed, (int, float)) else None)
+        return seeds
+
     def actors(self, r: RenderData):
-        """``tick -> [PlacedActor]``: the render's people as test-room actors (None without people)."""
+        """``tick -> [PlacedActor]``: the render's people as test-room actors (None without people).
+
+        Person k is posed exactly as the render poses it (``HumanSet.joint_transforms``: the run's
+        position, heading, gait phase and height through the same skeleton and gait loop) and dressed
+        like the actor its human checkpoint (``k mod M``) was trained from; a checkpoint trained from a
+        data folder has no test-room actor: appearance seed k."""
         if not r.humans:
             return None
         from nsim.stages.render import HumanSet
@@ -428,13 +457,15 @@ class Evaluator:
             raise InputError(f"render {r.short}: has human checkpoints but no trajectory")
         arrays = dict(np.load(self.store.get(traj).file("trajectory.npz"), allow_pickle=False))
         people = HumanSet([], arrays, "cpu")
+        seeds = self.actor_seeds(r)
         bodies: dict[int, Any] = {}
 
         def at(tick: int) -> list:
             placed = []
             for k, T in people.joint_transforms(tick):
                 if k not in bodies:
-                    bodies[k] = Actor(float(arrays["height_m"][k]), seed=k)
+                    seed = seeds[k % len(seeds)]
+                    bodies[k] = Actor(float(arrays["height_m"][k]), seed=k if seed is None else seed)
                 placed.append(PlacedActor(bodies[k], T, instance_id=k + 1))
             return placed
 
@@ -764,7 +795,37 @@ def _coco_lookup(boxes: dict, name: str):
     return Detections.empty()
 
 
+def upright_turns(sensor) -> int:
+    """Quarter turns (``np.rot90``'s k) that bring the world's up nearest to the image's up for a camera
+    on a level body (body z up): 0 for an upright camera; Spot's front cameras (rolled ~90 deg) 3, its
+    right camera (mounted upside down) 2 -- how Spot's SDK rotates them for display."""
+    up = np.asarray(sensor.sensor_to_body)[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # in the optical frame (y down)
+    dx, dy = float(up[0]), float(up[1])
+    best, score = 0, -math.inf
+    for k in range(4):
+        if -dy > score + 1e-9:
+            best, score = k, -dy
+        dx, dy = dy, -dx  # np.rot90(image, 1) turns the image direction (dx, dy) into (dy, -dx)
+    return best
+
+
+def _people_notes(people: list[dict[str, Any]]) -> list[str]:
+    """One line: in how many frames people are in view on each side, and how well the person masks agree."""
+    if not people:
+        return []
+    n = len(people)
+    sim = sum(p["people_px_sim"] > 0 for p in people)
+    real = sum(p["people_px_real"] > 0 for p in people)
+    ious = [p["mask_iou"] for p in people if p["mask_iou"] is not None]
+    line = (f"people in view: {sim} of {n} simulated frames (render person masks), {real} of {n} real frames "
+            f"(oracle actors)")
+    if ious:
+        line += f"; person mask IoU sim vs real {np.mean(ious):.3f} (mean over the {len(ious)} frames showing one)"
+    return [line]
+
+
 def table_detection(ev: Evaluator) -> Result:
+    from nsim.io.coco import read_instance_mask
     from nsim.metrics.detection import MatchConfig, compare_detections, read_coco_detections
     from nsim.metrics.paper_tables import detection_table
     from nsim.metrics.tables import NotAvailable, Table
@@ -786,36 +847,64 @@ def table_detection(ev: Evaluator) -> Result:
         table = Table("Detection on simulated vs real frames", columns, rows, (f"detector: {name}",),
                       label="tab:detection")
         return Result(table, [], [{"render": r.id, "not_available": reason}], {r.id: "none (no people)"})
-    records, extras = [], []
+    records, extras, people = [], [], []
+    turned: dict[str, int] = {}
     match = MatchConfig(iou_threshold=cfg.iou_threshold)
     for r in ev.renders:
         actors = ev.actors(r) if coco is None else None
         for s in ev.cameras(r, "image"):
-            sims, reals, numbers = [], [], []
+            turns = upright_turns(s) if cfg.upright and coco is None else 0
+            if turns:
+                turned[s.name] = turns
+            sims, reals, numbers, frame_extras = [], [], [], []
             for f, cam in zip(r.frames, ev.camera_frames(r, s.name), strict=True):
                 i = int(f["index"])
                 rel = f"{s.name}/rgb/{i:06d}.png"
+                extra = {"group": s.name, "frame": i, "render": r.id}
                 if coco is not None:
                     sims.append(_coco_lookup(coco[0], rel))
                     reals.append(_coco_lookup(coco[1], rel))
                 else:
                     sim = uint8_rgb(read_rgb(r.file(rel)))
-                    real = uint8_rgb(s.expose(ev.oracle_view(r, cam, i, actors).rgb))
+                    view = ev.oracle_view(r, cam, i, actors)
+                    real = uint8_rgb(s.expose(view.rgb))
                     if sim.shape != real.shape:
                         raise InputError(f"render {r.short}: {rel} is {sim.shape[1]}x{sim.shape[0]} but the ground truth "
                                          f"{real.shape[1]}x{real.shape[0]}")
-                    sims.append(detect(sim))
-                    reals.append(detect(real))
+                    sim_mask = np.asarray(read_instance_mask(r.file(f"{s.name}/mask/{i:06d}.png"))) > 0
+                    real_mask = view.instance_mask > 0
+                    if sim_mask.shape != real_mask.shape:
+                        raise InputError(f"render {r.short}: {s.name}/mask/{i:06d}.png is {sim_mask.shape[1]}x"
+                                         f"{sim_mask.shape[0]} but the frame {real.shape[1]}x{real.shape[0]}")
+                    union = int((sim_mask | real_mask).sum())
+                    extra.update(people_px_sim=int(sim_mask.sum()), people_px_real=int(real_mask.sum()),
+                                 mask_iou=float((sim_mask & real_mask).sum() / union) if union else None,
+                                 upright_turns=turns)
+                    people.append(extra)
+                    sims.append(detect(np.ascontiguousarray(np.rot90(sim, turns))))
+                    reals.append(detect(np.ascontiguousarray(np.rot90(real, turns))))
                 numbers.append(i)
+                frame_extras.append(extra)
             comparison = compare_detections(sims, reals, match)
             for k, fm in enumerate(comparison.frames):
                 records.append({"scene": s.name, "frame": numbers[k], "n_sim": fm.n_pred, "n_real": fm.n_ref,
                                 "ious": tuple(float(v) for v in fm.ious), "detector": name})
-                extras.append({"group": s.name, "frame": numbers[k], "render": r.id})
+                extras.append(frame_extras[k])
     table = detection_table(records, cfg.iou_threshold)
-    notes = (["real frames: the test room's oracle at the same camera poses with the simulated people as test-room "
-              "actors (nsim.synth.actor.Actor, height from the run, appearance seed = person index)"]
-             if coco is None else [f"detections from {ev.inputs.coco_sim.name} (sim) and {ev.inputs.coco_real.name} (real)"])
+    if coco is None:
+        seeds = {h: seed for r in ev.renders for h, seed in zip(r.humans, ev.actor_seeds(r), strict=True)}
+        dressed = ", ".join(f"checkpoint {h[:12]}: actor seed {seed}" if seed is not None
+                            else f"checkpoint {h[:12]}: seed = person index (no test-room actor)"
+                            for h, seed in seeds.items())
+        notes = ["real frames: the test room's oracle at the same camera poses with the simulated people as test-room "
+                 "actors (nsim.synth.actor.Actor), posed like the render's (the run's positions, headings, gait phases "
+                 f"and heights) and dressed like the actor each person's human checkpoint was trained from ({dressed})"]
+        if turned:
+            notes.append("frames turned upright before detecting (boxes in the turned frames): "
+                         + ", ".join(f"{cam} {90 * k} deg counter-clockwise" for cam, k in turned.items()))
+        notes += _people_notes(people)
+    else:
+        notes = [f"detections from {ev.inputs.coco_sim.name} (sim) and {ev.inputs.coco_real.name} (real)"]
     gt = {r.id: notes[0] for r in ev.renders}
     return Result(_with_notes(table, notes), records, extras, gt)
 

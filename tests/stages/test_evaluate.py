@@ -1,6 +1,7 @@
 """`nsim evaluate` at tiny size: a micro scene checkpoint, a short Spot run, a poses-mode render of
-the held-out frames; every table, a render equal to its ground truth scoring exactly, and each bad
-input ending in one line and exit 2."""
+the held-out frames; every table, a render equal to its ground truth scoring exactly, the Spot run
+rendered with its people for the detection table (people in the render and in the ground truth), and
+each bad input ending in one line and exit 2."""
 
 from __future__ import annotations
 
@@ -205,6 +206,112 @@ def test_detection_without_people_is_not_available(world):
     _, table, _ = latest(world)
     assert [r["Scene"] for r in table["rows"]] == list(CAMERAS)
     assert all("no people" in r["IoU"]["not_available"] for r in table["rows"])
+
+
+# ---------------------------------------------------------------------------------- people
+@pytest.fixture(scope="module")
+def people(world):
+    """The Spot run of ``world`` rendered with its five people, drawn by a human checkpoint trained
+    briefly on an actor capture of the same room (appearance seed 0: the run's seed)."""
+    ws = str(world.root)
+    assert main(["--workspace", ws, "capture", "synth", "--preset", "tiny", "--actor", "--set", "n_frames=12",
+                 "--set", "supersample=1", "--set", "video=false", "--tag", "capture/actor"]) == 0
+    assert main(["--workspace", ws, "--device", "cpu", "train-human", "--capture", "capture/actor", "--preset", "tiny",
+                 "--steps", "60", "--tag", "human/t"]) == 0
+    assert main(["--workspace", ws, "--device", "cpu", "render", "--trajectory", "trajectory/t", "--scene", "scene/t",
+                 "--rig", str(SPOT), "--humans", "human/t", "--preset", "tiny",
+                 "--set", f"sensors=[{','.join(CAMERAS)}]", "--tag", "render/people"]) == 0
+    return world
+
+
+def test_spot_render_with_people_shows_them(people):
+    """The run's people are in view of the Spot cameras: the render's person masks and COCO boxes."""
+    art = people.get(people.resolve("render/people"))
+    meta = json.loads(art.file("render.json").read_text())
+    px = {cam: [row[cam]["people_px"] for row in meta["per_frame"]] for cam in CAMERAS}
+    assert sum(p > 0 for ps in px.values() for p in ps) >= 3, px
+    boxes = [json.loads(art.file(f"{cam}/boxes.json").read_text())["annotations"] for cam in CAMERAS]
+    assert sum(len(b) for b in boxes) >= 3
+
+
+def test_detection_with_people(people):
+    """Detection on a render with people: numbers, not n/a; the ground truth (oracle actors) shows the
+    people where the render shows them (person masks overlap), dressed like the checkpoint's actor."""
+    n_frames = len(json.loads(people.get(people.resolve("render/people")).file("render.json").read_text())["frames"])
+    assert evaluate(people, "detection", "render/people") == 0
+    art, table, _ = latest(people)
+    assert [r["Scene"] for r in table["rows"]] == [*CAMERAS, "all"]
+    for row in table["rows"]:
+        assert isinstance(row["boxes sim"], int) and isinstance(row["boxes real"], int), row
+        assert row["frames"] == (n_frames * len(CAMERAS) if row["Scene"] == "all" else n_frames)
+    frames = json.loads(art.file("records.json").read_text())["frames"]
+    assert len(frames) == n_frames * len(CAMERAS)
+    sim = [f["people_px_sim"] for f in frames]
+    real = [f["people_px_real"] for f in frames]
+    assert sum(p > 0 for p in sim) >= 3 and sum(p > 0 for p in real) >= 3, (sim, real)
+    ious = [f["mask_iou"] for f in frames if f["mask_iou"] is not None]
+    assert np.mean(ious) > 0.3, ious  # the same people in the same places on both sides
+    assert {f["upright_turns"] for f in frames if f["group"] == "frontleft"} == {3}
+    notes = " ".join(table["notes"])
+    assert "people in view" in notes and "actor seed 0" in notes and "frontleft 270 deg" in notes
+    meta = json.loads(art.file("evaluation.json").read_text())
+    assert "oracle" in meta["ground_truth"][people.resolve("render/people")]
+
+
+def test_detection_ground_truth_is_the_oracle_with_the_people(people):
+    """A render whose frames are the oracle's with the actors detects exactly what the ground truth does,
+    and its person masks are the oracle's: the evaluation poses and dresses the people as the render does."""
+    from nsim.config import load_config
+    from nsim.io.coco import write_instance_mask
+    from nsim.io.images import write_image
+    from nsim.io.transforms_json import read_transforms
+    from nsim.sensors.rig import Rig
+    from nsim.stages import evaluate as ev_stage
+    from nsim.stages.evaluate import Evaluator, Inputs, uint8_rgb
+
+    ctx = RunContext(store=people, device_spec="cpu")
+    cfg = load_config(ev_stage.Config, stage="evaluate", preset="tiny", overrides=["table=detection"])
+    evaluator = Evaluator(Inputs(renders=(people.resolve("render/people"),)), cfg, ctx)
+    actors = evaluator.actors(evaluator.renders[0])
+    oracle = evaluator.oracle(evaluator.renders[0].lineage.capture)
+
+    def oracle_frames(d: Path) -> None:
+        rig = Rig.from_resolved(json.loads((d / "rig.json").read_text()))
+        for s in rig.cameras:
+            for f in read_transforms(d / "cameras" / f"{s.name}.json").frames:
+                tick = int(Path(f.file_path).stem)
+                view = oracle.render_gt(f.camera, f.cam_to_world, 1, actors=actors(tick))
+                write_image(d / f.file_path, uint8_rgb(s.expose(view.rgb)))
+                write_instance_mask(d / s.name / "mask" / f"{tick:06d}.png", view.instance_mask.astype(np.uint16))
+
+    ref = variant(people, "render/people", "oracle-people", oracle_frames)
+    # a generous HOG (8x upscale, margin -1) so that the 64x48 frames give boxes at all
+    sets = ("lpips_net=none", "detection.hog_upscale=8.0", "detection.hog_hit_threshold=-1.0")
+    assert evaluate(people, "detection", ref, sets=sets) == 0
+    art, table, records = latest(people)
+    frames = json.loads(art.file("records.json").read_text())["frames"]
+    assert all(f["mask_iou"] in (None, 1.0) for f in frames) and any(f["mask_iou"] == 1.0 for f in frames)
+    assert sum(r["n_sim"] for r in records) > 0
+    assert all(r["n_sim"] == r["n_real"] and len(r["ious"]) == r["n_sim"] for r in records)
+    assert all(v == pytest.approx(1.0) for r in records for v in r["ious"])
+    total = table["rows"][-1]
+    assert total["Scene"] == "all" and cell(total["precision"]) == 1.0 and cell(total["recall"]) == 1.0
+
+
+def test_upright_turns_of_spot_cameras():
+    """Spot's front cameras are rolled ~90 deg, its right camera is upside down: turned so up is up."""
+    from nsim.sensors.rig import Rig
+    from nsim.stages.evaluate import upright_turns
+
+    rig = Rig.load(SPOT)
+    turns = {s.name: upright_turns(s) for s in rig.cameras}
+    assert turns == {"frontleft": 3, "frontright": 3, "left": 0, "right": 2, "back": 0}
+    for s in rig.cameras:  # the body's up, projected into the turned image, points up (-y)
+        up = s.sensor_to_body[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        dx, dy = up[0], up[1]
+        for _ in range(turns[s.name]):
+            dx, dy = dy, -dx
+        assert -dy > abs(dx), s.name
 
 
 # ---------------------------------------------------------------------------------- bad input
