@@ -45,6 +45,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
 from pathlib import Path
@@ -58,7 +59,7 @@ from nsim.errors import InputError
 from nsim.rendering.renderer import MarchConfig
 
 STAGE = "render"
-VERSION = 1
+VERSION = 2  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
 log = logging.getLogger(__name__)
 
 DEPTH_ATTRIBUTE = {
@@ -337,7 +338,8 @@ class ShardRenderer:
         sc = self.model.sampler_cfg
         rays = make_rays(o, d, max(near, sc.near_m), min(far, sc.far_m),
                          self.model.aabb if sc.clip_rays_to_box else None)
-        people = self.humans.visible(frame_index, o, d, camera, cam_to_world, cfg.culling) if self.humans else []
+        people = (self.humans.visible(frame_index, o, d, camera, cam_to_world, cfg.culling, t_min=near, t_max=far,
+                                      valid=valid) if self.humans else [])
         if not people:
             out = render_rays(self.model, rays, cfg.method, self.grid, cfg.march, cfg.chunk_rays)
             instance = np.zeros(len(o), dtype=np.uint16)
@@ -510,21 +512,25 @@ class HumanSet:
             out.append((k, T))
         return out
 
-    def visible(self, tick: int, origins, dirs, camera, cam_to_world, culling: bool) -> list[dict]:
-        """People whose posed box the rays can see, with the ray mask to cast their samples on."""
+    def visible(self, tick: int, origins, dirs, camera, cam_to_world, culling: bool, t_min: float = 0.0,
+                t_max: float = math.inf, valid=None) -> list[dict]:
+        """People whose posed box the rays can see, with the ray mask to cast their samples on.
+
+        With ``culling`` a person is dropped when the box's image rectangle misses a camera's frame
+        (the cheap test, first), then when no ray meets the box within ``[t_min, t_max]`` m (the
+        sensor's range) among the ``valid (N,)`` rays; the mask keeps the rays that meet it."""
         import torch
 
         from nsim.rendering.culling import OrientedBox, camera_box_bounds, lidar_ray_box_mask
 
         people = []
+        o = d = None
         for k, T in self.joint_transforms(tick):
             model = self.models[k % len(self.models)]
             with torch.no_grad():
                 lo, hi = model.posed_box(torch.as_tensor(T, dtype=torch.float32)).reshape(2, 3).cpu().numpy()
             box = OrientedBox.from_min_max(lo.astype(np.float64), hi.astype(np.float64), np.eye(4))
-            o = origins.cpu().numpy().astype(np.float64)
-            d = dirs.cpu().numpy().astype(np.float64)
-            hit = lidar_ray_box_mask(o, d, box)  # exact ray-box test for every ray
+            inside = None
             if culling and camera is not None and cam_to_world is not None:
                 bounds = camera_box_bounds(camera, np.linalg.inv(cam_to_world), box)
                 if bounds is None:
@@ -533,9 +539,14 @@ class HumanSet:
                 h, w = camera.height, camera.width
                 uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
                 inside = ((uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)).reshape(-1)
-                mask = inside & hit
-            else:
-                mask = hit
+            if o is None:
+                o = origins.cpu().numpy().astype(np.float64)
+                d = dirs.cpu().numpy().astype(np.float64)
+            mask = lidar_ray_box_mask(o, d, box, t_min, t_max)  # exact ray-box test within the sensor's range
+            if valid is not None:
+                mask &= np.asarray(valid, dtype=bool)
+            if inside is not None:
+                mask &= inside
             if culling and not mask.any():
                 continue
             people.append({"k": k, "T": T, "model": model, "mask": torch.as_tensor(mask if culling else np.ones_like(mask))})
@@ -559,7 +570,6 @@ class HumanSet:
         instance = np.zeros(n, dtype=np.uint16)
         if len(idx):
             sub = rays[idx]
-            parts = [scene_out.samples]
             parts = [RaySamples(*(getattr(scene_out.samples, f)[idx] for f in ("t_starts", "t_ends", "sigma", "rgb")))]
             owners = [torch.zeros_like(parts[0].sigma, dtype=torch.long)]
             for p in people:

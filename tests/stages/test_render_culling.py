@@ -171,3 +171,31 @@ def test_people_out_of_view_are_skipped_and_change_nothing(world, human_calls):
     unculled = decoded(store, render_with(world, world["behind"], FRONT, culling=False, humans=True))
     assert human_calls["n"] > 0
     assert differing(culled, unculled) == []
+
+
+def test_lidar_culls_people_beyond_its_range(world, human_calls, tmp_path):
+    """Spot's 360-degree LiDAR sees the people 3-4.5 m behind the robot; with its range cut to 2 m
+    they are beyond it: culled (the human NeRF is never called) and the scans equal a render
+    without people, while at the full range the same people are drawn."""
+    from nsim.stages import render
+
+    rig = tmp_path / "spot_short_lidar.yaml"
+    text = SPOT.read_text()
+    assert "max_range_m: 100.0" in text
+    rig.write_text(text.replace("max_range_m: 100.0", "max_range_m: 2.0"))
+
+    def scan(humans: bool, rig_file) -> str:
+        cfg = from_dict(render.Config, {"tick_stride": 10, "max_frames": 2, "shard_frames": 2, "image_scale": 0.05,
+                                        "lidar_azimuth_scale": 0.02, "noise": False, "video": False,
+                                        "sensors": ["lidar"], "culling": True})
+        inputs = render.Inputs(trajectory=world["behind"], scene=world["scene"], rig=rig_file,
+                               humans=(world["human"],) if humans else ())
+        return render.run(inputs, cfg, world["ctx"]).render
+
+    store = world["store"]
+    short = decoded(store, scan(True, rig))
+    assert human_calls["n"] == 0
+    assert differing(short, decoded(store, scan(False, rig))) == []
+    assert any("/scan/" in k for k in short)
+    scan(True, SPOT)  # full range: the people behind the robot are within it
+    assert human_calls["n"] > 0
