@@ -75,6 +75,7 @@ class OptimConfig:
     lr_final_factor: float = param(0.03, gt=0.0, le=1.0)
     warmup_steps: int = param(0, ge=0)
     adam_eps: float = param(1e-15, gt=0.0)
+    adam_beta2: float = param(0.999, gt=0.0, lt=1.0, help="Adam's second-moment decay (instant-NGP uses 0.99)")
     proposal_anneal_steps: int = param(1000, ge=0, help="steps over which proposal weights go from ^0.5 to ^1")
     proposal_update_every: int = param(5, ge=1, help="train the proposal fields every N steps (after the warm-up)")
     proposal_warmup_steps: int = param(1000, ge=0, help="steps over which the update interval grows from 1 to N")
@@ -310,7 +311,8 @@ class SceneTrainer:
             groups.append({"params": list(self.pose_refine.parameters()), "lr": cfg.optim.lr_pose, "name": "pose"})
         self.base_lr = [g["lr"] for g in groups]
         # fused: one kernel over all tensors (4x faster than the default loop on CPU), deterministic
-        self.optimizer = torch.optim.Adam(groups, eps=cfg.optim.adam_eps, fused=self.device.type in ("cpu", "cuda"))
+        self.optimizer = torch.optim.Adam(groups, eps=cfg.optim.adam_eps, betas=(0.9, cfg.optim.adam_beta2),
+                                          fused=self.device.type in ("cpu", "cuda"))
         self.amp = bool(cfg.optim.mixed_precision and self.device.type == "cuda")
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.amp)
         self.step = 0

@@ -49,6 +49,15 @@ def test_data_and_split(tiny_data):
     assert (box[0] < centres.min(0)).all() and (box[1] > centres.max(0)).all()
 
 
+def test_adam_beta2_reaches_the_optimiser(tiny_data):
+    default = SceneTrainer(tiny_data, micro_cfg(), seed=0).optimizer
+    ngp = SceneTrainer(tiny_data, micro_cfg(optim={"adam_beta2": 0.99}), seed=0).optimizer
+    assert all(g["betas"] == (0.9, 0.999) for g in default.param_groups)
+    assert all(g["betas"] == (0.9, 0.99) for g in ngp.param_groups)
+    with pytest.raises(Exception, match="adam_beta2"):
+        micro_cfg(optim={"adam_beta2": 1.0})
+
+
 def test_missing_transforms_is_input_error(tmp_path):
     with pytest.raises(InputError, match="transforms.json"):
         SceneData.load(tmp_path)
