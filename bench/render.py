@@ -33,9 +33,8 @@ Measures, with the same renderer the stage uses (marching + occupancy grid):
    (decoded arrays with ``np.array_equal``, NaN = NaN, and bytes). Reported: the stage's wall
    time both ways and the speed-up, where the time goes (``HumanSet.visible``, the scene's
    ``render_rays``, the human NeRF, the merge in ``HumanSet.composite``, the rest of the stage),
-   and whether the outputs are identical. (A 360-degree LiDAR sees a person on the floor at
-   any azimuth and distance, since culling tests the ray against the box without a range limit,
-   so nobody is out of view of Spot's whole rig: hence the front cameras for (a).)
+   and whether the outputs are identical. (Spot's 360-degree LiDAR would see the people behind
+   the robot within its range, so (a) uses the two front cameras, which cannot.)
 
 Prints tables and one JSON object on the last line.
 """
