@@ -102,6 +102,8 @@ class LossConfig:
     free_space_samples: int = param(2, ge=1, le=64, help="free-space points per ray")
     free_space_margin_m: float = param(0.2, ge=0.0)
     free_space_start: float = param(0.5, ge=0.0, le=1.0, help="fraction of the steps before the free-space term starts")
+    random_background: bool = param(False, help="composite each training ray over a random colour instead of the "
+                                    "model's background, so that a surface seen in the images has to be opaque")
     depth_weight: float = param(0.0, ge=0.0, help="sparse-point depth supervision (needs sparse_points.ply)")
     depth_rays_per_batch: int = param(256, ge=1)
 
@@ -418,7 +420,12 @@ class SceneTrainer:
         with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
             out = self.model.render(rays, generator=g, anneal=anneal, proposal_grad=update_proposals,
                                     return_samples=grid and cfg.loss.distortion_weight > 0)
-            mse = torch.mean((out.rgb.float() - target) ** 2)
+            rgb = out.rgb.float()
+            if cfg.loss.random_background:
+                # the same volume rendering over a random colour per ray: (1 - acc) * bg replaces (1 - acc) * background
+                bg = torch.rand((len(rays), 3), generator=g).to(self.device)
+                rgb = rgb + (1.0 - out.accumulation.float())[:, None] * (bg - self.model.background)
+            mse = torch.mean((rgb - target) ** 2)
             loss = mse
             if cfg.loss.interlevel_weight > 0 and update_proposals:
                 inter = volume.interlevel_loss(out.weights, out.bins, out.proposal_weights, out.proposal_bins)

@@ -258,3 +258,24 @@ def test_grid_model_trains_resumes_and_reloads(tiny_data, tmp_path):
     export_scene(tmp_path / "out", whole)
     back = load_model(tmp_path / "out")
     assert back.sampler_cfg.kind == "grid" and torch.equal(back.grid_occupied, whole.model.grid_occupied.cpu())
+
+
+
+def test_random_background_composites_transparent_rays_over_noise(tiny_data):
+    """With an empty field (density ~ 0, accumulation ~ 0) a ray's training colour is the
+    background: black without the option (loss = mean(target^2)), a uniform random colour with
+    it (expected loss = 1/12 + mean((target - 1/2)^2)); reruns are identical."""
+    empty = {"density_bias": -20.0}
+    losses = {"interlevel_weight": 0.0, "distortion_weight": 0.0}
+    optim = {"rays_per_batch": 4096}
+    plain = SceneTrainer(tiny_data, micro_cfg(field=empty, loss=losses, optim=optim), seed=0)
+    noisy = SceneTrainer(tiny_data, micro_cfg(field=empty, loss={**losses, "random_background": True}, optim=optim), seed=0)
+    _, target, _ = plain.batch(0)
+    target = target.double()
+    black = float(torch.mean(target**2))
+    expected = 1.0 / 12.0 + float(torch.mean((target - 0.5) ** 2))
+    assert plain.train_step().loss == pytest.approx(black, rel=1e-4)
+    got = noisy.train_step().loss
+    assert got == pytest.approx(expected, rel=0.05) and abs(got - black) > 0.02
+    again = SceneTrainer(tiny_data, micro_cfg(field=empty, loss={**losses, "random_background": True}, optim=optim), seed=0)
+    assert again.train_step().loss == got
