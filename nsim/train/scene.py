@@ -103,7 +103,9 @@ class LossConfig:
     free_space_margin_m: float = param(0.2, ge=0.0)
     free_space_start: float = param(0.5, ge=0.0, le=1.0, help="fraction of the steps before the free-space term starts")
     random_background: bool = param(False, help="composite each training ray over a random colour instead of the "
-                                    "model's background, so that a surface seen in the images has to be opaque")
+                                    "model's background, so that a surface seen in the images has to be opaque "
+                                    "(instant-NGP's trick for object captures; on the closed test room, applied from "
+                                    "step 0, it collapsed the geometry: 19.9 dB, AbsRel 0.90 at 1400 steps vs 24.7 dB)")
     depth_weight: float = param(0.0, ge=0.0, help="sparse-point depth supervision (needs sparse_points.ply)")
     depth_rays_per_batch: int = param(256, ge=1)
 
