@@ -1,0 +1,74 @@
+"""One train-scene configuration on the test room: held-out PSNR and depth at chosen steps.
+
+    python bench/scene_probe.py [--quick] [--capture default|160] [--preset cpu] [--steps N]
+                                [--evals 700,1400] [--threads 1] [--set key=value ...] [--tag NAME]
+
+The side-by-side probes behind the ``cpu`` preset (batch size, threads, proposal schedule,
+learning rate, contraction, table size, random background) were runs of this script, two
+1-thread runs at a time on the 2 cores. It trains ``SceneTrainer`` on the default capture
+(320x240, 150 frames, ground-truth poses; ``--capture 160``: the same room at 160x120) and
+scores 6 held-out views at each step in ``--evals``: PSNR, the mean training-batch PSNR of the
+last 100 steps, median-depth AbsRel, and the training seconds so far (evaluation not counted).
+``--quick``: the tiny capture, 60 steps. Prints a line per evaluation and one JSON object last.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from nsim.config import load_config  # noqa: E402
+from nsim.context import RunContext  # noqa: E402
+from nsim.stages import capture  # noqa: E402
+from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
+from nsim.workspace.store import Store  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--capture", choices=("default", "160"), default="default")
+    ap.add_argument("--preset", default=None, help="train_scene preset (default cpu; tiny with --quick)")
+    ap.add_argument("--steps", type=int, default=None, help="training steps (default 1400; 60 with --quick)")
+    ap.add_argument("--evals", default=None, help="comma-separated steps to score at (default: the last step)")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--set", action="append", default=[], help="config override key=value (repeatable)")
+    ap.add_argument("--tag", default="probe")
+    ap.add_argument("--workspace", type=Path, default=None, help="reuse the capture here (default: a temp dir)")
+    args = ap.parse_args()
+    steps = args.steps or (60 if args.quick else 1400)
+    evals = sorted({int(x) for x in args.evals.split(",")}) if args.evals else [steps]
+    preset = args.preset or ("tiny" if args.quick else "cpu")
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Store(args.workspace or Path(tmp) / "ws")
+        over = ["video=false"] + (["width=160", "height=120"] if args.capture == "160" else [])
+        ccfg = load_config(capture.Config, stage="capture", preset="tiny" if args.quick else "default", overrides=over)
+        ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
+        data = SceneData.load(store.get(capture.run(capture.Inputs(), ccfg, ctx).capture).path)
+        cfg = load_config(TrainSceneConfig, stage="train_scene", preset=preset,
+                          overrides=[f"optim.steps={steps}", f"optim.num_threads={args.threads}", *args.set])
+        trainer = SceneTrainer(data, cfg, device="cpu", seed=0)
+        views = trainer.eval_ids[:: max(1, len(trainer.eval_ids) // 6)][:6].tolist()
+        batch_psnr: list[float] = []
+        out: dict = {"tag": args.tag, "capture": args.capture, "preset": preset, "set": args.set, "evals": {}}
+        for _ in range(steps):
+            batch_psnr.append(trainer.train_step().psnr)
+            if trainer.step in evals:
+                ev = trainer.evaluate(views)["mean"]
+                row = {"heldout_psnr": round(ev["psnr"], 2), "train_batch_psnr_last100": round(float(np.mean(batch_psnr[-100:])), 2),
+                       "abs_rel_median": round(ev.get("abs_rel_median", float("nan")), 3),
+                       "train_seconds": round(trainer.train_seconds, 1)}
+                out["evals"][trainer.step] = row
+                print(f"{args.tag} step {trainer.step}: {row}", flush=True)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
