@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from train_scene import make_capture  # noqa: E402  (bench/train_scene.py: the same capture)
 
 from nsim.config import load_config  # noqa: E402
-from nsim.context import RunContext  # noqa: E402
-from nsim.stages import capture  # noqa: E402
 from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
-from nsim.workspace.store import Store  # noqa: E402
 
 
 def main() -> None:
@@ -47,11 +47,8 @@ def main() -> None:
     evals = sorted({int(x) for x in args.evals.split(",")}) if args.evals else [steps]
     preset = args.preset or ("tiny" if args.quick else "cpu")
     with tempfile.TemporaryDirectory() as tmp:
-        store = Store(args.workspace or Path(tmp) / "ws")
-        over = ["video=false"] + (["width=160", "height=120"] if args.capture == "160" else [])
-        ccfg = load_config(capture.Config, stage="capture", preset="tiny" if args.quick else "default", overrides=over)
-        ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
-        data = SceneData.load(store.get(capture.run(capture.Inputs(), ccfg, ctx).capture).path)
+        size = ("width=160", "height=120") if args.capture == "160" else ()
+        data = SceneData.load(make_capture(args.workspace or Path(tmp) / "ws", args.quick, size))
         cfg = load_config(TrainSceneConfig, stage="train_scene", preset=preset,
                           overrides=[f"optim.steps={steps}", f"optim.num_threads={args.threads}", *args.set])
         trainer = SceneTrainer(data, cfg, device="cpu", seed=0)

@@ -54,9 +54,9 @@ from nsim.train.scene import (  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
 
-def make_capture(root: Path, quick: bool) -> Path:
+def make_capture(root: Path, quick: bool, overrides: tuple[str, ...] = ()) -> Path:
     cfg = load_config(capture.Config, stage="capture", preset="tiny" if quick else "default",
-                      overrides=["video=false"])
+                      overrides=["video=false", *overrides])
     store = Store(root)
     ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
     return store.get(capture.run(capture.Inputs(), cfg, ctx).capture).path
