@@ -25,6 +25,7 @@ import torch
 from torch import Tensor, nn
 
 from nsim.config import param
+from nsim.fields.hash_encoding import HashEncoding
 from nsim.fields.scene_field import ProposalField, ProposalFieldConfig, SceneField, SceneFieldConfig
 from nsim.rendering import volume
 from nsim.rendering.rays import Rays
@@ -170,6 +171,8 @@ class SceneModel(nn.Module):
             ProposalField(sampler_cfg.proposal_field_config(k), aabb, generator=generator, contract=field_cfg.contract)
             for k in range(len(sampler_cfg.proposal_samples) if sampler_cfg.kind == "proposal" else 0)
         )
+        for enc in (m for m in self.modules() if isinstance(m, HashEncoding)):
+            enc.compile_indices = field_cfg.compile_indices
         if sampler_cfg.kind == "grid":
             from nsim.rendering.occupancy import grid_shape
 

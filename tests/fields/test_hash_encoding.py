@@ -6,6 +6,7 @@ import pytest
 import torch
 from torch.testing import assert_close
 
+from nsim.fields import hash_encoding
 from nsim.fields.hash_encoding import HashEncoding, grid_layout, hash_grid_encode
 from tests.fields.reference import expected_resolutions, hash_encode_loop
 
@@ -52,8 +53,10 @@ def test_shapes_and_clamping():
     assert_close(enc(outside), enc(inside))
 
 
-def test_table_gradient_matches_reference():
+@pytest.mark.parametrize("dense_via_grid_sample", [True, False])
+def test_table_gradient_matches_reference(dense_via_grid_sample):
     enc = _encoding(dtype=torch.float64)
+    enc.dense_via_grid_sample = dense_via_grid_sample
     x = torch.rand(40, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
     w = torch.randn(40, enc.n_output_dims, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
     (enc(x) * w).sum().backward()
@@ -92,3 +95,47 @@ def test_tcnn_backend_is_optional():
     except ImportError:
         with pytest.raises(ImportError):
             HashEncoding(backend="tcnn")
+
+
+def test_compiled_indices_match_eager():
+    """torch.compile'd corner arithmetic: the same rows, the same weights, the same gradients."""
+    eager = _encoding(levels=8, log2_table_size=9, max_resolution=300)
+    fast = _encoding(levels=8, log2_table_size=9, max_resolution=300)
+    fast.compile_indices = True
+    assert eager.layout.n_dense >= 1 and eager.layout.n_dense < eager.layout.levels  # both row formulas
+    consts = hash_encoding._level_constants(eager.layout, torch.device("cpu"))
+    for n in (257, 1000):  # two batch sizes: one dynamic-shape kernel serves both
+        x = torch.rand(n, 3, generator=torch.Generator().manual_seed(n))
+        for sl in (slice(0, eager.layout.n_dense), slice(eager.layout.n_dense, eager.layout.levels)):
+            with torch.no_grad():
+                ref = hash_encoding.corner_indices_weights(x, eager.layout, consts, sl)
+                got = hash_encoding.corner_indices_weights(x, eager.layout, consts, sl, compiled=True)
+            assert torch.equal(ref[0], got[0])
+            assert_close(got[1], ref[1], rtol=1e-6, atol=1e-7)
+            assert_close(got[2], ref[2], rtol=1e-6, atol=1e-7)
+        w = torch.randn(n, eager.n_output_dims, generator=torch.Generator().manual_seed(7))
+        for enc in (eager, fast):
+            enc.table.grad = None
+            (enc(x) * w).sum().backward()
+        assert_close(fast(x), eager(x), rtol=1e-6, atol=1e-7)
+        assert_close(fast.table.grad, eager.table.grad, rtol=1e-6, atol=1e-7)
+
+
+def test_compile_failure_falls_back_to_eager(monkeypatch, caplog):
+    def broken_compile(fn, **kw):
+        def run(*a, **k):
+            raise RuntimeError("no C++ compiler found")
+        return run
+
+    monkeypatch.setattr(hash_encoding, "_compiled_corner_terms", None)
+    monkeypatch.setattr(hash_encoding, "_compile_failed", False)
+    monkeypatch.setattr(torch, "compile", broken_compile)
+    enc = _encoding()
+    x = torch.rand(50, 3, generator=torch.Generator().manual_seed(8))
+    expected = enc(x)
+    enc.compile_indices = True
+    with caplog.at_level("WARNING"):
+        got = enc(x)
+    assert torch.equal(got, expected)
+    assert hash_encoding._compile_failed
+    assert "torch.compile failed (no C++ compiler found)" in caplog.text
