@@ -438,7 +438,7 @@ class SceneTrainer:
         anneal = self.anneal(step)
         update_proposals = self.proposal_update(step) and not grid
         self.optimizer.zero_grad(set_to_none=True)
-        parts = self._parts(len(rays), step)
+        parts = self._parts(len(rays))
         if len(parts) == 1:
             loss, mse = self._part_loss(step, rays, target, g, anneal, update_proposals, grid, True, 1.0, extra)
             self.scaler.scale(loss).backward()
@@ -477,7 +477,7 @@ class SceneTrainer:
         return StepStats(step=self.step, loss=float(loss.detach()), psnr=-10.0 * math.log10(max(mse_f, 1e-12)), seconds=dt,
                          extra=extra)
 
-    def _parts(self, n: int, step: int) -> list[slice]:
+    def _parts(self, n: int) -> list[slice]:
         """The batch's parts for ``optim.batch_threads`` (CPU only; one part otherwise)."""
         k = self.cfg.optim.batch_threads if self.device.type == "cpu" else 1
         k = max(1, min(k, n))
@@ -492,7 +492,8 @@ class SceneTrainer:
 
     def _part_loss(self, step: int, rays: Rays, target: Tensor, g: torch.Generator, anneal: float,
                    update_proposals: bool, grid: bool, first: bool, share: float, extra: dict) -> tuple[Tensor, Tensor]:
-        """Loss (scaled by ``share``, the part's fraction of the batch) and unscaled colour MSE of one part."""
+        """Loss and colour MSE of one part, both scaled by ``share`` (the part's fraction of the batch),
+        so that the parts' values add up to the whole batch's."""
         cfg = self.cfg
         with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
             out = self.model.render(rays, generator=g, anneal=anneal, proposal_grad=update_proposals,
