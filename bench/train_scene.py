@@ -249,7 +249,8 @@ def main() -> None:
     ap.add_argument("--poses", choices=("gt", "reconstruct", "both"), default=None,
                     help="ground-truth poses, poses from nsim reconstruct, or both (default: both; gt with --quick)")
     ap.add_argument("--threads", type=int, default=None, help="torch threads for training (default: the preset's "
-                    "optim.num_threads; the cpu preset's 512-ray steps are faster on one thread than on two)")
+                    "optim.num_threads; the cpu preset uses one per op and its second core through "
+                    "optim.batch_threads)")
     ap.add_argument("--render-threads", type=int, default=2, help="torch threads for the final scoring and the "
                     "rendering speed test (default 2: big render chunks do use both cores)")
     ap.add_argument("--evals", type=int, default=None, help="evaluations during training (default 8, 2 with --quick)")
@@ -287,7 +288,8 @@ def main() -> None:
             results["reconstruct"] = {"reconstruct_seconds": round(rec_s, 1),
                                       **bench_one("reconstructed poses", data, cfg, oracle, args, Path(tmp) / "work_rec", ws)}
 
-    title = f"train_scene preset={preset}, {args.threads} training threads, {args.render_threads} rendering"
+    title = (f"train_scene preset={preset}, {args.threads} torch thread(s) x {cfg.optim.batch_threads} batch thread(s) "
+             f"training, {args.render_threads} rendering")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     plot(args.out, results, title)
     print(title)
@@ -299,7 +301,8 @@ def main() -> None:
               f"{h.get('abs_rel_expected', float('nan')):10.4f} {r['off_path']['psnr']:13.2f} "
               f"{r['render']['grid_speedup']:7.1f} {r['render']['psnr_grid_vs_dense']:16.1f}")
     print(f"curves: {args.out}")
-    print(json.dumps({"preset": preset, "threads": args.threads, "render_threads": args.render_threads, **results}))
+    print(json.dumps({"preset": preset, "threads": args.threads, "batch_threads": cfg.optim.batch_threads,
+                      "render_threads": args.render_threads, **results}))
 
 
 def _to_plain(cfg) -> dict:

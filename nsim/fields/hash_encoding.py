@@ -16,8 +16,8 @@ by gathering their ``(N, l, 8)`` corner rows in one ``embedding_bag``; all of it
 autograd node (``_EncodeFunction``) with a hand-written backward that fills a single table
 gradient: ``grid_sample``'s backward kernel for the dense levels, a deterministic
 ``index_add_`` for the gathered ones, and the analytic position gradient only when ``x``
-needs it (pose refinement). ``tests/fields/reference.py`` holds a plain per-level, per-corner loop twin
-that both paths are checked against.
+needs it (pose refinement). ``tests/fields/reference.py`` holds a plain per-level, per-corner
+loop twin that both paths are checked against.
 
 On CUDA, ``backend="auto"`` uses tiny-cuda-nn's fused kernel when the package is importable
 (it is optional; its parameters are laid out differently, so a checkpoint records which
@@ -151,16 +151,16 @@ def corner_indices_weights(x: Tensor, layout: GridLayout, consts: tuple[Tensor, 
     hashed = start >= layout.n_dense
     if not hashed and start + res.shape[0] > layout.n_dense:
         raise ValueError("corner_indices_weights: a call handles dense or hashed levels, not both")
-    args = (x, res, mult, offsets, hashed, layout.table_size - 1)
+    mask = layout.table_size - 1
     fn = _corner_terms_compiled() if compiled and not torch.is_grad_enabled() else None
     if fn is not None:
         try:  # fresh constants: a view's storage offset would be guarded on and recompile per level slice
-            return fn(x, res.clone(), mult.clone(), offsets.clone(), hashed, layout.table_size - 1)
+            return fn(x, res.clone(), mult.clone(), offsets.clone(), hashed, mask)
         except Exception as err:  # noqa: BLE001 - any compiler failure: the eager path computes the same
             _compile_failed = True
             log.warning("hash encoding: torch.compile failed (%s); using the eager index computation",
                         str(err).splitlines()[0][:200] if str(err) else type(err).__name__)
-    return _corner_terms(*args)
+    return _corner_terms(x, res, mult, offsets, hashed, mask)
 
 
 def _dense_volume(table: Tensor, layout: GridLayout, level: int) -> Tensor:
