@@ -179,13 +179,38 @@ def test_fisheye_with_unknown_intrinsics(fisheye_capture, tmp_path):
     assert result.stats.mean_reprojection_error_px < 1.0  # COLMAP's own figure overflows at 90 deg
 
 
+_SFM_IN_FRESH_PROCESS = """
+import sys
+from pathlib import Path
+import numpy as np
+from nsim.sfm.colmap import run_sfm
+image_dir, work, names = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3].split(",")
+r = run_sfm(image_dir, work, image_names=names)
+np.savez(work / "out.npz", names=np.array(r.registered_names), c2w=np.stack([r.cam_to_world[n] for n in names]),
+         xyz=r.points_xyz)
+"""
+
+
 def test_same_input_same_poses(pinhole_capture, tmp_path):
+    """Two reruns, each in a fresh process (as ``nsim reconstruct`` is rerun), agree bit for bit.
+
+    Fresh processes because that is the promise: in a long-lived process that had run most of
+    the test suite, one of two back-to-back runs once came out 2 mm apart (CI, not reproduced
+    here in 30+ tries); see the Determinism paragraph of ``nsim.sfm.colmap``.
+    """
+    import subprocess
+    import sys
+
     names = pinhole_capture.names[:12]
-    runs = [run_sfm(pinhole_capture.image_dir, tmp_path / f"w{k}", image_names=names) for k in range(2)]
-    assert runs[0].registered_names == runs[1].registered_names == names
-    for name in names:
-        np.testing.assert_array_equal(runs[0].cam_to_world[name], runs[1].cam_to_world[name])
-    np.testing.assert_array_equal(runs[0].points_xyz, runs[1].points_xyz)
+    outs = []
+    for k in range(2):
+        work = tmp_path / f"w{k}"
+        subprocess.run([sys.executable, "-c", _SFM_IN_FRESH_PROCESS, str(pinhole_capture.image_dir), str(work),
+                        ",".join(names)], check=True, capture_output=True)
+        outs.append(np.load(work / "out.npz"))
+    assert outs[0]["names"].tolist() == outs[1]["names"].tolist() == names
+    np.testing.assert_array_equal(outs[0]["c2w"], outs[1]["c2w"])
+    np.testing.assert_array_equal(outs[0]["xyz"], outs[1]["xyz"])
 
 
 def test_a_pose_that_jumps_away_from_its_neighbours_is_rejected(pinhole_sfm):
