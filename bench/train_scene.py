@@ -105,7 +105,7 @@ def render_speed(model, grid, data: SceneData, frame: int, n_rays: int, march_st
     pick = torch.randperm(len(rays), generator=g)[:n_rays]
     sub = rays[pick]
     out = {}
-    dense_cfg = MarchConfig(step_m=march_step_m, stop_transmittance=0.0, color_weight_threshold=0.0)
+    dense_cfg = MarchConfig(step_m=march_step_m, stop_transmittance=0.0, color_skip_weight=0.0)
     fast_cfg = MarchConfig(step_m=march_step_m)
     t0 = time.perf_counter()
     prop = render_rays(model, sub, "proposal", chunk=4096)

@@ -8,10 +8,16 @@ Two ways to render the same model:
 ``method="march"``
     Ray marching with a constant step ``step_m`` from near to far, in blocks of
     ``block_steps`` samples, with early ray termination (a ray stops once its transmittance
-    falls below ``stop_transmittance``), colour evaluated only where a sample's weight exceeds
-    ``color_weight_threshold``, and, with an :class:`~nsim.rendering.occupancy.OccupancyGrid`,
-    no field evaluation at all in free cells (empty-space skipping). Without the grid and with
-    ``stop_transmittance = 0`` every sample is evaluated: the dense reference.
+    falls below ``stop_transmittance``), colour skipped on the lightest samples of each ray as
+    long as their summed weight stays within ``color_skip_weight`` (those samples count as
+    black, so the colour error is at most that much per channel), and, with an
+    :class:`~nsim.rendering.occupancy.OccupancyGrid`, no field evaluation at all in free cells
+    (empty-space skipping). Without the grid, with ``stop_transmittance = 0`` and
+    ``color_skip_weight = 0`` every sample is evaluated: the dense reference.
+
+    A per-sample weight threshold is not enough for the colour: a NeRF's free space carries a
+    faint haze, and a thousand samples of weight 5e-5 each add up to 0.05 of the pixel (a
+    1e-4 threshold cost 36 dB against the dense image on the default test room).
 
 Every entry point returns a :class:`~nsim.rendering.model.RenderOutput`; with
 ``return_samples=True`` it carries the per-sample ``(t_starts, t_ends, sigma, rgb)`` of the
@@ -45,7 +51,8 @@ class MarchConfig:
     step_m: float = param(0.01, gt=0.0)
     block_steps: int = param(64, ge=1)
     stop_transmittance: float = param(1e-4, ge=0.0, lt=1.0)
-    color_weight_threshold: float = param(1e-4, ge=0.0)
+    color_skip_weight: float = param(1e-3, ge=0.0, lt=1.0,
+                                     help="summed weight per ray whose colour may be skipped (bounds the error)")
 
 
 @dataclass
@@ -67,6 +74,7 @@ def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg:
     acc = _Acc(torch.zeros(n, 3, device=device), torch.zeros(n, device=device), torch.zeros(n, device=device),
                torch.ones(n, device=device))
     weights_all = torch.zeros(n, n_steps, device=device)
+    skip_left = torch.full((n,), cfg.color_skip_weight, device=device)  # colour-skip budget left per ray
     kept: list[tuple[Tensor, Tensor, Tensor, Tensor, Tensor]] = []  # (ray, step, t0, sigma, rgb) of evaluated samples
     alive = torch.arange(n, device=device)
     for start in range(0, n_steps, cfg.block_steps):
@@ -86,7 +94,14 @@ def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg:
             sigma[todo] = s_todo.to(sigma.dtype)
             weights_blk, trans_blk = volume.render_weights(sigma, (t1 - t0).clamp(min=0.0))
             weights_blk = weights_blk * acc.trans[alive, None]
-            colour = todo & (weights_blk > cfg.color_weight_threshold)
+            colour = todo
+            if cfg.color_skip_weight > 0:
+                # skip the lightest samples while their running sum stays within the ray's budget
+                w_sorted, order = torch.sort(weights_blk, dim=-1, stable=True)
+                skip_sorted = torch.cumsum(w_sorted, -1) <= skip_left[alive, None]
+                skip = torch.zeros_like(todo).scatter(-1, order, skip_sorted)
+                colour = todo & ~skip
+                skip_left[alive] -= (weights_blk * (todo & skip)).sum(-1)
             if bool(colour.any()):
                 sel = colour[todo]  # the colour samples among the density samples
                 rows = torch.nonzero(colour, as_tuple=True)[0]

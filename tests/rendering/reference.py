@@ -50,6 +50,7 @@ class BoxField(nn.Module):
         self.lo, self.hi = torch.tensor(lo), torch.tensor(hi)
         self.sigma_in, self.sigma_out = sigma_in, sigma_out
         self.calls = 0
+        self.color_calls = 0
 
     def density(self, x):
         self.calls += x.shape[0]
@@ -61,6 +62,7 @@ class BoxField(nn.Module):
         return None
 
     def color(self, geo, dirs, codes):
+        self.color_calls += geo.shape[0]
         return torch.sigmoid(torch.stack([torch.sin(3 * geo[:, 0]), torch.cos(2 * geo[:, 1]), geo[:, 2]], -1))
 
 

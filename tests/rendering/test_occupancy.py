@@ -51,7 +51,7 @@ def test_save_load_roundtrip(tmp_path):
 def test_grid_marching_equals_dense_marching():
     model = _scene()
     rays = _rays()
-    cfg_dense = MarchConfig(step_m=0.01, block_steps=32, stop_transmittance=0.0, color_weight_threshold=0.0)
+    cfg_dense = MarchConfig(step_m=0.01, block_steps=32, stop_transmittance=0.0, color_skip_weight=0.0)
     dense = march(model, rays, None, cfg_dense)
     dense_calls = model.field.calls
     model.field.calls = 0
@@ -68,6 +68,22 @@ def test_grid_marching_equals_dense_marching():
     assert hit.sum() > 100
     t_face = (2.5 - rays.origins[hit, 0]) / rays.dirs[hit, 0]
     assert (dense.depth_median[hit] - t_face).abs().max() < 0.011
+
+
+def test_colour_skipping_is_bounded_in_haze():
+    """Faint haze everywhere: the lightest samples' colour is skipped only up to the ray's budget."""
+    field = BoxField(lo=[2.5, 1.0, 0.0], hi=[3.0, 2.5, 1.2], sigma_in=80.0, sigma_out=0.02)
+    model = ToyModel(field, AABB)
+    rays = _rays()
+    dense = march(model, rays, None, MarchConfig(step_m=0.01, stop_transmittance=0.0, color_skip_weight=0.0))
+    dense_colour = field.color_calls
+    for budget in (1e-3, 1e-2):
+        field.color_calls = 0
+        fast = march(model, rays, None, MarchConfig(step_m=0.01, stop_transmittance=0.0, color_skip_weight=budget))
+        assert field.color_calls < 0.95 * dense_colour  # the lightest samples lose their colour
+        err = (fast.rgb - dense.rgb).abs().max()
+        assert 0.2 * budget < err <= budget + 1e-6  # skipped samples count as black: bounded, not free
+        assert_close(fast.accumulation, dense.accumulation)
 
 
 def test_chunked_render_and_samples():
