@@ -9,6 +9,9 @@ learning rate, contraction, table size, random background) were runs of this scr
 (320x240, 150 frames, ground-truth poses; ``--capture 160``: the same room at 160x120) and
 scores 6 held-out views at each step in ``--evals``: PSNR, the mean training-batch PSNR of the
 last 100 steps, median-depth AbsRel, and the training seconds so far (evaluation not counted).
+``--render-check``: after the last step, also the held-out rays' accumulation (mean, and the
+fraction above 0.99: how opaque the surfaces are) and the marching renderer's speed and
+fidelity with the baked occupancy grid (``bench/train_scene.py``'s ``render_speed``).
 ``--quick``: the tiny capture, 60 steps. Prints a line per evaluation and one JSON object last.
 """
 
@@ -25,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from train_scene import make_capture  # noqa: E402  (bench/train_scene.py: the same capture)
+from train_scene import make_capture, render_speed  # noqa: E402  (bench/train_scene.py: the same capture)
 
 from nsim.config import load_config  # noqa: E402
 from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
@@ -41,6 +44,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", action="append", default=[], help="config override key=value (repeatable)")
     ap.add_argument("--tag", default="probe")
+    ap.add_argument("--render-check", action="store_true", help="accumulation and grid marching after the last step")
     ap.add_argument("--workspace", type=Path, default=None, help="reuse the capture here (default: a temp dir)")
     args = ap.parse_args()
     steps = args.steps or (60 if args.quick else 1400)
@@ -64,7 +68,32 @@ def main() -> None:
                        "train_seconds": round(trainer.train_seconds, 1)}
                 out["evals"][trainer.step] = row
                 print(f"{args.tag} step {trainer.step}: {row}", flush=True)
+        if args.render_check:
+            out["render"] = render_check(trainer, data, views)
+            print(f"{args.tag} render: {out['render']}", flush=True)
     print(json.dumps(out))
+
+
+def render_check(trainer: SceneTrainer, data: SceneData, views: list[int]) -> dict:
+    import time
+
+    import torch
+
+    from nsim.rendering.renderer import camera_rays, render_rays
+    from nsim.train.scene import bake_occupancy
+
+    model = trainer.model.eval()
+    rays = [camera_rays(model, data.cameras[0], data.cam_to_world[v])[0] for v in views]
+    g = torch.Generator().manual_seed(0)
+    acc = torch.cat([render_rays(model, r[torch.randperm(len(r), generator=g)[:500]], "proposal").accumulation
+                     for r in rays])
+    t0 = time.perf_counter()
+    grid = bake_occupancy(trainer)
+    bake_s = time.perf_counter() - t0
+    speed = render_speed(model, grid, data, views[len(views) // 2], 1500 if len(data.names) > 40 else 300, 0.01)
+    return {"acc_mean": round(float(acc.mean()), 4), "acc_above_0.99": round(float((acc > 0.99).float().mean()), 4),
+            "occupied_fraction": round(grid.occupied_fraction, 4), "bake_s": round(bake_s, 1),
+            **{k: round(v, 2) for k, v in speed.items()}}
 
 
 if __name__ == "__main__":

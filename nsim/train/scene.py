@@ -114,6 +114,11 @@ class LossConfig:
                                     "model's background, so that a surface seen in the images has to be opaque "
                                     "(instant-NGP's trick for object captures; on the closed test room, applied from "
                                     "step 0, it collapsed the geometry: 19.9 dB, AbsRel 0.90 at 1400 steps vs 24.7 dB)")
+    random_background_start: float = param(0.0, ge=0.0, le=1.0,
+                                           help="fraction of the steps before the random background starts")
+    opacity_weight: float = param(0.0, ge=0.0, help="binary entropy of each ray's accumulation: a ray should "
+                                  "either hit something or nothing, not see through a half-transparent wall")
+    opacity_start: float = param(0.0, ge=0.0, le=1.0, help="fraction of the steps before the opacity term starts")
     depth_weight: float = param(0.0, ge=0.0, help="sparse-point depth supervision (needs sparse_points.ply)")
     depth_rays_per_batch: int = param(256, ge=1)
 
@@ -140,10 +145,14 @@ class OutputConfig:
     eval_views: int = param(4, ge=0, help="held-out views scored during training (0: all)")
     final_eval_views: int = param(0, ge=0, help="held-out views scored and rendered at the end (0: all)")
     occupancy_cell_m: float = param(0.04, gt=0.0, help="3D occupancy grid cell size")
-    occupancy_density: float = param(1.0, gt=0.0, help="density (1/m) above which a cell is occupied")
+    occupancy_density: float = param(1.0, gt=0.0, help="density (1/m) above which a cell of the rendering grid is "
+                                     "occupied; low, because the grid must not change the image: a NeRF's haze of "
+                                     "0.01/m over 5 m of free space is 5 % of a pixel")
     occupancy_samples_per_cell: int = param(2, ge=1, le=64)
     obstacle_band_m: tuple[float, float] = (0.1, 1.0)
     obstacle_cell_m: float = param(0.05, gt=0.0)
+    obstacle_density: float = param(0.05, gt=0.0, help="density (1/m) above which a cell of the 2D obstacle map "
+                                    "is an obstacle (the simulator's walls: haze must not count)")
     render_chunk_rays: int = param(8192, ge=1)
 
 
@@ -499,12 +508,17 @@ class SceneTrainer:
             out = self.model.render(rays, generator=g, anneal=anneal, proposal_grad=update_proposals,
                                     return_samples=grid and cfg.loss.distortion_weight > 0)
             rgb = out.rgb.float()
-            if cfg.loss.random_background:
+            if cfg.loss.random_background and step >= cfg.loss.random_background_start * cfg.optim.steps:
                 # the same volume rendering over a random colour per ray: (1 - acc) * bg replaces (1 - acc) * background
                 bg = torch.rand((len(rays), 3), generator=g).to(self.device)
                 rgb = rgb + (1.0 - out.accumulation.float())[:, None] * (bg - self.model.background)
             mse = torch.mean((rgb - target) ** 2)
             loss = mse
+            if cfg.loss.opacity_weight > 0 and step >= cfg.loss.opacity_start * cfg.optim.steps:
+                acc = out.accumulation.float().clamp(1e-4, 1.0 - 1e-4)
+                entropy = -(acc * torch.log(acc) + (1.0 - acc) * torch.log1p(-acc)).mean()
+                loss = loss + cfg.loss.opacity_weight * entropy
+                extra["opacity"] = share * float(entropy.detach())
             if cfg.loss.interlevel_weight > 0 and update_proposals:
                 inter = volume.interlevel_loss(out.weights, out.bins, out.proposal_weights, out.proposal_bins)
                 loss = loss + cfg.loss.interlevel_weight * inter
@@ -783,7 +797,7 @@ def bake_obstacles(trainer: SceneTrainer):
     model = trainer.model.eval()
     g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "obstacles"))
     return obstacle_map(lambda x: model.field.density(x)[0], trainer.aabb, out.obstacle_band_m, out.obstacle_cell_m,
-                        out.occupancy_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device)
+                        out.obstacle_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device)
 
 
 def plot_curves(path: Path, history: list[dict[str, float]]) -> None:

@@ -281,6 +281,54 @@ def test_random_background_composites_transparent_rays_over_noise(tiny_data):
     assert again.train_step().loss == got
 
 
+def _binary_entropy(acc):
+    a = acc.clamp(1e-4, 1 - 1e-4)
+    return -(a * torch.log(a) + (1 - a) * torch.log1p(-a)).mean()
+
+
+def test_opacity_term_is_the_binary_entropy_of_accumulation(tiny_data):
+    """loss.opacity_weight adds w * mean(-a log a - (1 - a) log(1 - a)) over the rays' accumulation a,
+    from opacity_start of the steps on; its gradient pushes a half-transparent ray's accumulation
+    towards 0 or 1, whichever is nearer."""
+    w = 0.5
+    base = {"interlevel_weight": 0.0, "distortion_weight": 0.0}
+    plain = SceneTrainer(tiny_data, micro_cfg(loss=base), seed=0)
+    opaque = SceneTrainer(tiny_data, micro_cfg(loss={**base, "opacity_weight": w, "opacity_start": 0.5}), seed=0)
+    rays, target, _ = plain.batch(0)
+    last = plain.cfg.optim.steps - 1
+    with torch.no_grad():
+        l0, _ = plain._part_loss(last, rays, target, None, 1.0, False, False, True, 1.0, {})
+        early_extra, late_extra = {}, {}
+        early, _ = opaque._part_loss(0, rays, target, None, 1.0, False, False, True, 1.0, early_extra)
+        late, _ = opaque._part_loss(last, rays, target, None, 1.0, False, False, True, 1.0, late_extra)
+        before = plain.model.render(rays, generator=None, anneal=1.0).accumulation.double()
+    assert float(early) == float(l0) and "opacity" not in early_extra  # before opacity_start: no term
+    entropy = float(_binary_entropy(before))
+    assert entropy > 0.05  # the untrained micro scene is half-transparent: the term is not vacuous
+    assert float(late) - float(l0) == pytest.approx(w * entropy, rel=1e-3)
+    assert late_extra["opacity"] == pytest.approx(entropy, rel=1e-3)
+    # a small step down the term's gradient alone: rays above 1/2 gain accumulation, rays below
+    # lose it (a denser and a thinner initial field, so that both kinds of ray occur)
+    checked = set()
+    for bias in (-1.0, -6.0, -9.0):
+        tr = SceneTrainer(tiny_data, micro_cfg(field={"density_bias": bias}, loss={**base, "opacity_weight": w}), seed=0)
+        params = [q for grp in tr.optimizer.param_groups for q in grp["params"]]
+        acc = tr.model.render(rays, generator=None, anneal=1.0).accumulation
+        grads = torch.autograd.grad(_binary_entropy(acc), params, allow_unused=True)
+        with torch.no_grad():
+            for q, g in zip(params, grads, strict=True):
+                if g is not None:
+                    q -= 1e-2 * g / (g.abs().max() + 1e-12)
+            after = tr.model.render(rays, generator=None, anneal=1.0).accumulation.double()
+        acc = acc.detach().double()
+        assert float(_binary_entropy(after)) < float(_binary_entropy(acc))
+        for side, sel, sign in (("hi", acc > 0.6, 1.0), ("lo", acc < 0.4, -1.0)):
+            if sel.sum() >= 10:
+                assert sign * float((after[sel] - acc[sel]).mean()) > 0, (bias, side)
+                checked.add(side)
+    assert checked == {"hi", "lo"}
+
+
 def test_split_batch_gradient_is_the_whole_batch_gradient(tiny_data):
     """optim.batch_threads: the parts' losses are scaled by their share, so their gradients sum to the whole batch's."""
     tr = SceneTrainer(tiny_data, micro_cfg(loss={"distortion_weight": 0.01}), seed=0)
