@@ -20,7 +20,7 @@ from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.stages import capture, reconstruct, render, simulate, train_scene  # noqa: E402
+from nsim.stages import capture, evaluate, reconstruct, render, simulate, train_human, train_scene  # noqa: E402
 from nsim.workspace.store import Store, default_root  # noqa: E402
 
 
@@ -52,6 +52,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     rec_inputs = reconstruct.Inputs(capture=cap.id, reference=cap.file("gt_trajectory.tum"))
     out = step("reconstruct (pinhole)", lambda: reconstruct.run(rec_inputs, rec_cfg, ctx))
     ctx.store.set_ref("poses/demo", out.poses)
+    poses_id = out.poses
 
     # The scene NeRF on those poses (the tiny demo trains a few hundred steps: it checks the path).
     ts_overrides = ["optim.steps=300"] if preset == "tiny" else []
@@ -67,11 +68,42 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     out = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx))
     ctx.store.set_ref("trajectory/demo-spot-run", out.trajectory)
 
-    # Spot's five fisheye cameras (with depth) and its LiDAR along the run, in the trained scene.
-    ren_cfg = load_config(render.Config, stage="render", preset="tiny" if preset == "tiny" else "cpu")
-    ren_inputs = render.Inputs(trajectory=out.trajectory, scene=scene_id, rig=repo / "configs" / "robots" / "spot.yaml")
-    out = step("render (spot rig)", lambda: render.run(ren_inputs, ren_cfg, ctx))
-    ctx.store.set_ref("render/demo-spot-run", out.render)
+    traj_id = out.trajectory
+
+    # The people: an actor walking the room, filmed by a handheld camera, and the human NeRF
+    # trained on it (a small capture: the demo shows the path; `make paper` has the larger one).
+    tiny = preset == "tiny"
+    actor = ["actor=true", "supersample=1", "video=false"] + ([] if tiny else ["width=160", "height=120", "n_frames=60"])
+    act_cfg = load_config(capture.Config, stage="capture", preset="tiny", overrides=actor)
+    act = step("capture synth --actor", lambda: capture.run(capture.Inputs(), act_cfg, ctx)).capture
+    ctx.store.set_ref("capture/demo-actor", act)
+    th_cfg = load_config(train_human.Config, stage="train_human", preset="tiny",
+                         overrides=[] if tiny else ["optim.steps=600", "optim.num_threads=2"])
+    human = step("train-human", lambda: train_human.run(train_human.Inputs(capture=act), th_cfg, ctx)).human
+    ctx.store.set_ref("human/demo", human)
+
+    # Spot's five fisheye cameras (with depth) and its LiDAR along the run, in the trained scene,
+    # with the scenario's people drawn by the human NeRF.
+    ren_preset = "tiny" if tiny else "cpu"
+    ren_cfg = load_config(render.Config, stage="render", preset=ren_preset)
+    ren_inputs = render.Inputs(trajectory=traj_id, scene=scene_id, rig=repo / "configs" / "robots" / "spot.yaml",
+                               humans=(human,))
+    spot = step("render (spot rig, people)", lambda: render.run(ren_inputs, ren_cfg, ctx)).render
+    ctx.store.set_ref("render/demo-spot-run", spot)
+
+    # The scene's held-out capture frames, rendered at their own cameras (a few of them).
+    held_cfg = load_config(render.Config, stage="render", preset=ren_preset,
+                           overrides=["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=4"])
+    held = step("render (held-out frames)", lambda: render.run(render.Inputs(poses=poses_id, scene=scene_id), held_cfg, ctx))
+    ctx.store.set_ref("render/demo-heldout", held.render)
+
+    # How real it is: the paper's image and depth tables for these renders.
+    for table, renders in (("scenes", (held.render,)), ("spot-rgb", (spot,)), ("spot-depth", (spot,))):
+        ev_cfg = load_config(evaluate.Config, stage="evaluate", preset="tiny" if tiny else "default",
+                             overrides=[f"table={table}"])
+        ev = step(f"evaluate --table {table}", lambda c=ev_cfg, r=renders: evaluate.run(evaluate.Inputs(renders=r), c, ctx))
+        ctx.store.set_ref(f"evaluation/demo-{table}", ev.evaluation)
+        print(evaluate.load_table(ctx, ev.evaluation).to_markdown(), flush=True)
 
 
 def main() -> int:
