@@ -33,10 +33,11 @@ def step(name: str, fn):
 
 def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     ctx = RunContext(store=Store(workspace), device_spec=device, seed=seed)
+    tiny = preset == "tiny"
     captures = {}
     for camera in ("pinhole", "fisheye"):
         overrides = [f"camera={camera}"]
-        if preset == "tiny" and camera == "pinhole":
+        if tiny and camera == "pinhole":
             # SIFT cannot chain 40 frames at 96x72: the tiny demo reconstructs 100 frames at 160x120
             overrides += ["n_frames=100", "width=160", "height=120"]
         cfg = load_config(capture.Config, stage="capture", preset=preset, overrides=overrides)
@@ -55,7 +56,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     poses_id = out.poses
 
     # The scene NeRF on those poses (the tiny demo trains a few hundred steps: it checks the path).
-    ts_overrides = ["optim.steps=300"] if preset == "tiny" else []
+    ts_overrides = ["optim.steps=300"] if tiny else []
     ts_cfg = load_config(train_scene.Config, stage="train_scene", preset=preset, overrides=ts_overrides)
     ts_inputs = train_scene.Inputs(poses=out.poses)
     out = step("train-scene", lambda: train_scene.run(ts_inputs, ts_cfg, ctx))
@@ -72,7 +73,6 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
 
     # The people: an actor walking the room, filmed by a handheld camera, and the human NeRF
     # trained on it (a small capture: the demo shows the path; `make paper` has the larger one).
-    tiny = preset == "tiny"
     actor = ["actor=true", "supersample=1", "video=false"] + ([] if tiny else ["width=160", "height=120", "n_frames=60"])
     act_cfg = load_config(capture.Config, stage="capture", preset="tiny", overrides=actor)
     act = step("capture synth --actor", lambda: capture.run(capture.Inputs(), act_cfg, ctx)).capture

@@ -96,3 +96,10 @@ def distortion_loss_intervals(weights: Tensor, starts: Tensor, ends: Tensor) -> 
     pairwise = 2.0 * (weights * (mid * w_before - wm_before)).sum(-1)  # mid ascending: |m_i - m_j| = m_i - m_j
     self_term = (weights**2 * width).sum(-1) / 3.0
     return (pairwise + self_term).mean()
+
+
+def opacity_loss(accumulation: Tensor, eps: float = 1e-4) -> Tensor:
+    """Mean binary entropy of the rays' ``accumulation (R,)``: zero where a ray is fully opaque
+    or fully clear, largest at 1/2 (a half-transparent surface)."""
+    a = accumulation.float().clamp(eps, 1.0 - eps)
+    return -(a * torch.log(a) + (1.0 - a) * torch.log1p(-a)).mean()

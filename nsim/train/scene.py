@@ -515,8 +515,7 @@ class SceneTrainer:
             mse = torch.mean((rgb - target) ** 2)
             loss = mse
             if cfg.loss.opacity_weight > 0 and step >= cfg.loss.opacity_start * cfg.optim.steps:
-                acc = out.accumulation.float().clamp(1e-4, 1.0 - 1e-4)
-                entropy = -(acc * torch.log(acc) + (1.0 - acc) * torch.log1p(-acc)).mean()
+                entropy = volume.opacity_loss(out.accumulation)
                 loss = loss + cfg.loss.opacity_weight * entropy
                 extra["opacity"] = share * float(entropy.detach())
             if cfg.loss.interlevel_weight > 0 and update_proposals:
