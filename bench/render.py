@@ -27,7 +27,8 @@ Measures, with the same renderer the stage uses (marching + occupancy grid):
    frame and sensor, and the human NeRF is never called); (b) 2.5-4 m *in front*, rendered with
    the front cameras and the LiDAR (checked: the people change the output; one tick with
    ``--quick``). The same frames
-   are rendered by the stage with ``culling: true``, ``false`` and without human checkpoints;
+   are rendered by the stage with ``culling: true``, ``false`` (every person's NeRF queried on
+   every ray's samples: no 2D-bound test, no ray-box test) and without human checkpoints;
    for (a) after one warm-up run, in rotating order, best of ``--culling-reps`` (3; 2 quick) at camera
    scale ``--culling-scale`` (default ``--image-scale``); every rendered file is compared
    (decoded arrays with ``np.array_equal``, NaN = NaN, and bytes). Reported: the stage's wall
@@ -484,6 +485,7 @@ def main() -> None:
     ap.add_argument("--method", default="proposal", choices=("proposal", "march"), help="renderer for the Spot run")
     ap.add_argument("--march-step", type=float, default=0.02, help="march step (m) where marching is measured")
     ap.add_argument("--no-culling", action="store_true", help="skip the culling section")
+    ap.add_argument("--only-culling", action="store_true", help="run the culling section alone")
     ap.add_argument("--human", default=None, help="human checkpoint for the culling section (default: train one)")
     ap.add_argument("--culling-scale", type=float, default=None,
                     help="camera scale of the culling section (default: --image-scale)")
@@ -513,42 +515,43 @@ def main() -> None:
 
         oracle = RoomOracle(RoomSpec.from_dict(json.loads(cap.file("room.json").read_text())["spec"]))
 
-        results["heldout"] = {}
-        for method, views, step in (("proposal", None, 0.01), ("march", 2, args.march_step)):
-            h = heldout(ctx, cap_id, scene_id, method, views, step)
-            results["heldout"][method] = h
-            print(f"held-out capture views, {method} ({h['views']}): PSNR {h['psnr']:.2f} dB (train-scene's held-out "
-                  f"PSNR on the same views {h['train_scene_heldout_psnr_same_views']:.2f}), SSIM {h['ssim']:.3f}, "
-                  f"depth AbsRel (median) {h['abs_rel_median_depth']:.4f}; {h['camera_rays_per_s']:.0f} rays/s", flush=True)
-
         traj = spot_run(ctx, q)
-        names = tuple(s.name for s in __import__("nsim.sensors.rig", fromlist=["Rig"]).Rig.load(SPOT).sensors)
-        cams = tuple(n for n in names if n != "lidar")
-        art_id, wall = spot_render(ctx, traj, scene_id, args, names)
-        art = store.get(art_id)
-        n_cam_rays = n_lidar_rays = 0
-        from nsim.sensors.rig import Rig
+        if not args.only_culling:
+            results["heldout"] = {}
+            for method, views, step in (("proposal", None, 0.01), ("march", 2, args.march_step)):
+                h = heldout(ctx, cap_id, scene_id, method, views, step)
+                results["heldout"][method] = h
+                print(f"held-out capture views, {method} ({h['views']}): PSNR {h['psnr']:.2f} dB (train-scene's held-out "
+                      f"PSNR on the same views {h['train_scene_heldout_psnr_same_views']:.2f}), SSIM {h['ssim']:.3f}, "
+                      f"depth AbsRel (median) {h['abs_rel_median_depth']:.4f}; {h['camera_rays_per_s']:.0f} rays/s", flush=True)
 
-        rig = Rig.from_resolved(json.loads(art.file("rig.json").read_text()))
-        ticks = len(json.loads(art.file("render.json").read_text())["frames"])
-        for s in rig.sensors:
-            n = int(np.prod(s.ray_shape)) * ticks
-            if s.type == "lidar":
-                n_lidar_rays += n
-            else:
-                n_cam_rays += n
-        # LiDAR alone, timed on its own
-        lid_id, lid_wall = spot_render(ctx, traj, scene_id, args, ("lidar",), force=True)
-        results["speed"] = {"spot_wall_s": wall, "camera_and_lidar_rays": n_cam_rays + n_lidar_rays,
-                            "rays_per_s_all": (n_cam_rays + n_lidar_rays) / wall,
-                            "lidar_rays_per_s": n_lidar_rays / lid_wall}
-        results["spot"] = score_spot(ctx, art_id, oracle)
-        if not args.no_ray:
-            from nsim.rendering.engine import EngineConfig
+            names = tuple(s.name for s in __import__("nsim.sensors.rig", fromlist=["Rig"]).Rig.load(SPOT).sensors)
+            cams = tuple(n for n in names if n != "lidar")
+            art_id, wall = spot_render(ctx, traj, scene_id, args, names)
+            art = store.get(art_id)
+            n_cam_rays = n_lidar_rays = 0
+            from nsim.sensors.rig import Rig
 
-            _, w1 = spot_render(ctx, traj, scene_id, args, cams[:2], EngineConfig(engine="ray", workers=1), force=True)
-            _, w2 = spot_render(ctx, traj, scene_id, args, cams[:2], EngineConfig(engine="ray", workers=2), force=True)
-            results["ray"] = {"one_worker_s": w1, "two_workers_s": w2, "speedup": w1 / w2}
+            rig = Rig.from_resolved(json.loads(art.file("rig.json").read_text()))
+            ticks = len(json.loads(art.file("render.json").read_text())["frames"])
+            for s in rig.sensors:
+                n = int(np.prod(s.ray_shape)) * ticks
+                if s.type == "lidar":
+                    n_lidar_rays += n
+                else:
+                    n_cam_rays += n
+            # LiDAR alone, timed on its own
+            lid_id, lid_wall = spot_render(ctx, traj, scene_id, args, ("lidar",), force=True)
+            results["speed"] = {"spot_wall_s": wall, "camera_and_lidar_rays": n_cam_rays + n_lidar_rays,
+                                "rays_per_s_all": (n_cam_rays + n_lidar_rays) / wall,
+                                "lidar_rays_per_s": n_lidar_rays / lid_wall}
+            results["spot"] = score_spot(ctx, art_id, oracle)
+            if not args.no_ray:
+                from nsim.rendering.engine import EngineConfig
+
+                _, w1 = spot_render(ctx, traj, scene_id, args, cams[:2], EngineConfig(engine="ray", workers=1), force=True)
+                _, w2 = spot_render(ctx, traj, scene_id, args, cams[:2], EngineConfig(engine="ray", workers=2), force=True)
+                results["ray"] = {"one_worker_s": w1, "two_workers_s": w2, "speedup": w1 / w2}
         if not args.no_culling:
             human_id, human_s = get_human(ctx, args.human, q)
             results["culling"] = {"human_train_s": human_s, **culling_bench(ctx, traj, scene_id, human_id, args)}
@@ -564,6 +567,15 @@ def main() -> None:
                 "culling_in_view_images_identical": cu["in_view"]["images_identical"],
             })
 
+    sp = results.get("spot")
+    if sp is not None:
+        print_spot(results, args)
+    if "culling" in results:
+        print_culling(results)
+    print(json.dumps({"quick": q, "image_scale": args.image_scale, **results}, default=lambda o: to_dict(o)))
+
+
+def print_spot(results: dict, args) -> None:
     sp = results["spot"]
     print()
     print(f"Spot cameras along spot_run ({sp['ticks']} ticks, cameras scaled x{args.image_scale}), against the oracle:")
@@ -579,35 +591,36 @@ def main() -> None:
     if "ray" in results:
         r = results["ray"]
         print(f"Ray: 1 worker {r['one_worker_s']:.1f} s, 2 workers {r['two_workers_s']:.1f} s (x{r['speedup']:.2f})")
-    if "culling" in results:
-        cu = results["culling"]
-        a, b = cu["out_of_view"], cu["in_view"]
-        print()
-        print(f"culling: {cu['people']} people, {a['frames']} ticks of spot_run, cameras x{cu['scale']}, the same frames "
-              f"both ways; (a) best of {len(a['culled_all_s'])} alternating runs")
-        print(f"{'case':<46} {'culled s':>9} {'unculled s':>11} {'speed-up':>9} {'identical':>10}")
-        print(f"{'(a) behind the robot: ' + '+'.join(a['sensors']):<46} {a['culled_s']:9.2f} {a['unculled_s']:11.2f} "
-              f"{a['speedup']:9.2f} {str(a['identical']):>10}")
-        label_b = f"(b) in front, {b['ticks']} tick(s): " + "+".join(b["sensors"])
-        print(f"{label_b:<46} {b['culled_s']:9.2f} {b['unculled_s']:11.2f} "
-              f"{b['unculled_s'] / b['culled_s']:9.2f} {str(b['identical']):>10}")
-        print(f"(a) process CPU time: culled {a['culled_cpu_s']:.2f} s, unculled {a['unculled_cpu_s']:.2f} s "
-              f"(x{a['speedup_cpu']:.2f}), without human checkpoints {a['no_humans_cpu_s']:.2f} s")
-        print(f"(a) without human checkpoints {a['no_humans_s']:.2f} s (culled / none x{a['culled_over_no_humans']:.2f}, "
-              f"unculled / none x{a['unculled_over_no_humans']:.2f}); human NeRF calls: culled "
-              f"{a['human_nerf_calls_culled']}, unculled {a['human_nerf_calls_unculled']}")
-        print(f"{'(a) where the time goes, s':<28} {'visible':>8} {'scene':>8} {'human':>8} {'merge':>8} {'rest':>8}")
-        for m, row in a["breakdown"].items():
-            print(f"{m:<28} {row['visible_s']:8.2f} {row['scene_render_rays_s']:8.2f} {row['human_render_samples_s']:8.2f} "
-                  f"{row['merge_and_composite_s']:8.2f} {row['rest_of_stage_s']:8.2f}")
-        diff = b["culled_vs_unculled"]
-        if not diff["identical"]:
-            print(f"(b) culled vs unculled: differing files {diff['arrays_differ']}; max |difference| per channel "
-                  f"{diff['channel_max_abs_diff']}; camera images identical: {diff['images_identical']}")
-        print(f"(b) people cover {b['people_px']} mask px and change {b['files_changed_by_people']} of "
-              f"{b['culled_vs_unculled']['files']} files against a render without them"
-              + (f"; the stage failed ({b['stage_error']}), {b['workaround']}" if "stage_error" in b else ""))
-    print(json.dumps({"quick": q, "image_scale": args.image_scale, **results}, default=lambda o: to_dict(o)))
+
+
+def print_culling(results: dict) -> None:
+    cu = results["culling"]
+    a, b = cu["out_of_view"], cu["in_view"]
+    print()
+    print(f"culling: {cu['people']} people, {a['frames']} ticks of spot_run, cameras x{cu['scale']}, the same frames "
+          f"both ways; (a) best of {len(a['culled_all_s'])} alternating runs")
+    print(f"{'case':<46} {'culled s':>9} {'unculled s':>11} {'speed-up':>9} {'identical':>10}")
+    print(f"{'(a) behind the robot: ' + '+'.join(a['sensors']):<46} {a['culled_s']:9.2f} {a['unculled_s']:11.2f} "
+          f"{a['speedup']:9.2f} {str(a['identical']):>10}")
+    label_b = f"(b) in front, {b['ticks']} tick(s): " + "+".join(b["sensors"])
+    print(f"{label_b:<46} {b['culled_s']:9.2f} {b['unculled_s']:11.2f} "
+          f"{b['unculled_s'] / b['culled_s']:9.2f} {str(b['identical']):>10}")
+    print(f"(a) process CPU time: culled {a['culled_cpu_s']:.2f} s, unculled {a['unculled_cpu_s']:.2f} s "
+          f"(x{a['speedup_cpu']:.2f}), without human checkpoints {a['no_humans_cpu_s']:.2f} s")
+    print(f"(a) without human checkpoints {a['no_humans_s']:.2f} s (culled / none x{a['culled_over_no_humans']:.2f}, "
+          f"unculled / none x{a['unculled_over_no_humans']:.2f}); human NeRF calls: culled "
+          f"{a['human_nerf_calls_culled']}, unculled {a['human_nerf_calls_unculled']}")
+    print(f"{'(a) where the time goes, s':<28} {'visible':>8} {'scene':>8} {'human':>8} {'merge':>8} {'rest':>8}")
+    for m, row in a["breakdown"].items():
+        print(f"{m:<28} {row['visible_s']:8.2f} {row['scene_render_rays_s']:8.2f} {row['human_render_samples_s']:8.2f} "
+              f"{row['merge_and_composite_s']:8.2f} {row['rest_of_stage_s']:8.2f}")
+    diff = b["culled_vs_unculled"]
+    if not diff["identical"]:
+        print(f"(b) culled vs unculled: differing files {diff['arrays_differ']}; max |difference| per channel "
+              f"{diff['channel_max_abs_diff']}; camera images identical: {diff['images_identical']}")
+    print(f"(b) people cover {b['people_px']} mask px and change {b['files_changed_by_people']} of "
+          f"{b['culled_vs_unculled']['files']} files against a render without them"
+          + (f"; the stage failed ({b['stage_error']}), {b['workaround']}" if "stage_error" in b else ""))
 
 
 if __name__ == "__main__":

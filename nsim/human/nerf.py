@@ -480,7 +480,7 @@ class HumanModel(nn.Module):
     # ------------------------------------------------------------------ rendering
     def render_samples(self, origins: Tensor, dirs: Tensor, joint_transforms, near: float | Tensor = 0.0,
                        far: float | Tensor = 1e4, generator: torch.Generator | None = None,
-                       pose_index: Tensor | None = None) -> RaySamples:
+                       pose_index: Tensor | None = None, box_test: bool = True) -> RaySamples:
         """Samples of the posed body along rays ``origins, dirs (R, 3)`` (world, unit dirs).
 
         ``joint_transforms``: the pose ``(J, 4, 4)``, or several ``(P, J, 4, 4)`` with each
@@ -489,6 +489,11 @@ class HumanModel(nn.Module):
         evenly; with ``generator`` each sample's point is jittered inside its interval
         (training), else taken at its middle. Rays that miss the box get empty intervals at
         ``near`` (``t_starts == t_ends``, density 0). Returns ``RaySamples`` ``(R, S)``.
+
+        ``box_test``: query the network only on the rays that meet the box (the ray-box test
+        that visibility culling is). ``False`` queries it on every ray's samples, as a renderer
+        without culling does, and gives the same samples (a missed ray's intervals are empty,
+        so its density is set to 0 after the query): for measuring what culling saves.
         """
         T = self.as_transforms(joint_transforms)
         n, S = origins.shape[0], self.cfg.samples_per_ray
@@ -513,6 +518,15 @@ class HumanModel(nn.Module):
         t_mid = t0 + (t1 - t0) * u
         sigma = origins.new_zeros(n, S)
         rgb = origins.new_zeros(n, S, 3)
+        if not box_test:
+            chunk = 4096  # rays per query: bounds the warp's (points, joints) memory
+            for a in range(0, n, chunk):
+                sl = slice(a, min(n, a + chunk))
+                x = origins[sl, None, :] + dirs[sl, None, :] * t_mid[sl, :, None]
+                s, c, _ = self.query(x.reshape(-1, 3), T, idx[sl].repeat_interleave(S))
+                sigma[sl] = torch.where(hit[sl, None], s.view(-1, S), 0.0)
+                rgb[sl] = torch.where(hit[sl, None, None], c.view(-1, S, 3), 0.0)
+            return RaySamples(t0, t1, sigma, rgb)
         rows = torch.nonzero(hit)[:, 0]
         if rows.numel():
             x = origins[rows, None, :] + dirs[rows, None, :] * t_mid[rows, :, None]

@@ -88,7 +88,8 @@ class Config:
     min_accumulation: float = param(0.5, ge=0.0, le=1.0, help="opacity below which a ray has no return")
     rgb_exr: bool = param(False, help="also write linear RGB EXR")
     noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded)")
-    culling: bool = param(True, help="cast human samples only where their posed box is visible")
+    culling: bool = param(True, help="query people's NeRFs only on rays that can see their posed box (2D bound for "
+                                      "cameras, ray-box test); false: on every ray (the same images, slower)")
     preview_every: int = param(10, ge=1, help="contact sheet: every k-th rendered frame")
     preview_max_rows: int = param(8, ge=1)
     video: bool = param(True, help="write preview/preview.mp4")
@@ -576,7 +577,7 @@ class HumanSet:
                 m = p["mask"][idx]
                 with torch.no_grad():  # the model's parameters require grad; rendering needs none
                     hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
-                                                   sub.near, sub.far)
+                                                   sub.near, sub.far, box_test=cfg.culling)
                 sig = torch.where(m[:, None], hs.sigma, 0.0)
                 parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
                 owners.append(torch.full_like(sig, p["k"] + 1, dtype=torch.long))

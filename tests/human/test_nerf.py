@@ -152,6 +152,27 @@ def test_render_samples_only_inside_the_posed_box(skeleton, walk_poses):
         assert bool((s.t_ends[r] == s.t_starts[r]).all()) and bool((s.sigma[r] == 0).all())
 
 
+def test_render_samples_without_the_box_test_queries_every_ray_and_gives_the_same_samples(skeleton, walk_poses):
+    m = opaque(model(skeleton=skeleton), 3.0)
+    T = walk_poses[1]
+    o, d = _rays_through_body(m, T, 6)
+    o = torch.cat([o, o])
+    d = torch.cat([d, -d])  # the second half points away: they miss the box
+    calls = []
+    real = m.query
+    m.query = lambda x, *a, **k: (calls.append(len(x)), real(x, *a, **k))[1]
+    with torch.no_grad():
+        culled = m.render_samples(o, d, T, near=0.0, far=100.0)
+        n_culled = sum(calls)
+        calls.clear()
+        every = m.render_samples(o, d, T, near=0.0, far=100.0, box_test=False)
+    S = SMALL.samples_per_ray
+    assert n_culled == 6 * S and sum(calls) == 12 * S  # the ray-box test skips the 6 rays that miss
+    assert float(culled.sigma[:6].max()) > 0 and bool((culled.sigma[6:] == 0).all())
+    for f in ("t_starts", "t_ends", "sigma", "rgb"):
+        assert torch.equal(getattr(culled, f), getattr(every, f)), f
+
+
 def test_render_samples_respects_near_far(skeleton, walk_poses):
     m = model(skeleton=skeleton)
     T = walk_poses[0]
