@@ -297,8 +297,10 @@ class StepStats:
 
 def _sum_in_order(tensors: list[Tensor]) -> Tensor:
     """``((t0 + t1) + t2) + ...`` into a fresh tensor (the first is not modified)."""
-    out = tensors[0].clone() if len(tensors) > 1 else tensors[0]
-    for t in tensors[1:]:
+    if len(tensors) == 1:
+        return tensors[0]
+    out = tensors[0] + tensors[1]  # one pass over memory, not a copy and then an add
+    for t in tensors[2:]:
         out += t
     return out
 
@@ -313,6 +315,10 @@ class SceneTrainer:
         self.data, self.cfg, self.device, self.seed = data, cfg, torch.device(device), int(seed)
         if cfg.optim.num_threads > 0 and self.device.type == "cpu":
             torch.set_num_threads(cfg.optim.num_threads)
+        if self.device.type == "cpu":
+            from nsim.train.heap import keep_large_blocks_on_heap
+
+            keep_large_blocks_on_heap()  # table-sized gradient buffers every step: no page faults (nsim/train/heap.py)
         self.train_ids, self.eval_ids = data.split(cfg.data.holdout_every)
         self.aabb = torch.as_tensor(scene_bounds(data, cfg.data))
         init = torch.Generator().manual_seed(_step_seed(seed, 0, "init"))
@@ -469,7 +475,12 @@ class SceneTrainer:
             else:  # this process's first split step runs its parts in turn: compiled kernels get built once
                 results = [part(k, sl) for k, sl in enumerate(parts)]
                 self._parts_warm = True
-            # the parts' gradients summed in part order, whatever order the threads finished in: deterministic
+            # the parts' gradients summed in part order, whatever order the threads finished in: deterministic.
+            # The sum and the optimiser step are element-wise: they run on all the parts' cores (the same
+            # result on any number of threads); with large hash tables they were a third of a step on one.
+            tail_threads = self.cfg.optim.num_threads * len(parts)
+            if tail_threads > 0:
+                torch.set_num_threads(tail_threads)
             for i, q in enumerate(params):
                 gs = [r[3][i] for r in results if r[3][i] is not None]
                 q.grad = _sum_in_order(gs) if gs else None
@@ -479,6 +490,8 @@ class SceneTrainer:
                 extra[key] = sum(r[2].get(key, 0.0) for r in results)
         self.scaler.step(self.optimizer)
         self.scaler.update()
+        if len(parts) > 1 and self.cfg.optim.num_threads > 0:
+            torch.set_num_threads(self.cfg.optim.num_threads)
         self.step += 1
         dt = time.perf_counter() - t0
         self.train_seconds += dt
