@@ -573,14 +573,22 @@ class HumanSet:
             sub = rays[idx]
             parts = [RaySamples(*(getattr(scene_out.samples, f)[idx] for f in ("t_starts", "t_ends", "sigma", "rgb")))]
             owners = [torch.zeros_like(parts[0].sigma, dtype=torch.long)]
+            live = torch.zeros(len(idx), dtype=torch.bool)  # rays where some person has a sample of non-zero length
             for p in people:
                 m = p["mask"][idx]
                 with torch.no_grad():  # the model's parameters require grad; rendering needs none
                     hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
                                                    sub.near, sub.far, box_test=cfg.culling)
                 sig = torch.where(m[:, None], hs.sigma, 0.0)
+                live |= m & (hs.t_ends > hs.t_starts).any(-1)
                 parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
                 owners.append(torch.full_like(sig, p["k"] + 1, dtype=torch.long))
+            # a ray that no person's samples reach keeps the scene's own rendering, bit for bit (re-compositing
+            # the same samples after a merge can round differently): culling on or off, the same image
+            parts = [RaySamples(*(getattr(q, f)[live] for f in ("t_starts", "t_ends", "sigma", "rgb"))) for q in parts]
+            owners = [o[live] for o in owners]
+            idx = idx[live]
+        if len(idx):
             merged = RaySamples(*(torch.cat([getattr(q, f) for q in parts], dim=1)
                                   for f in ("t_starts", "t_ends", "sigma", "rgb")))
             comp = composite(merged, scene_model.background)
