@@ -477,7 +477,7 @@ class SceneTrainer:
                 self._parts_warm = True
             # the parts' gradients summed in part order, whatever order the threads finished in: deterministic.
             # The sum and the optimiser step are element-wise: they run on all the parts' cores (a thread count
-            # fixed by the config, so reruns repeat bit for bit); at 2^19-row tables they were a fifth of a step.
+            # fixed by the config, so reruns repeat bit for bit); at 2^19-row tables they took over a quarter of a step.
             tail_threads = self.cfg.optim.num_threads * len(parts)
             if tail_threads > 0:
                 torch.set_num_threads(tail_threads)
