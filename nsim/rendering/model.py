@@ -32,6 +32,7 @@ from nsim.rendering.rays import Rays
 from nsim.rendering.samplers import SPACINGS, pdf_resample, spacing_to_t, uniform_bins
 
 SAMPLER_KINDS = ("proposal", "grid")
+BACKGROUNDS = ("last_sample", "constant")
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,16 @@ class SamplerConfig:
     training steps the grid is multiplied by ``grid_decay`` and a ``grid_update_fraction`` of
     its cells (all of them during the first ``grid_warmup_steps``) take the maximum of it and
     the field's density at a random point in the cell.
+
+    background: what the light a ray has left after its last sample (``1 - accumulation``) is
+    composited over: ``constant``, ``background_rgb``; ``last_sample`` (nerfacto's default), the
+    colour of the ray's last sample. Rays with no sample at all get ``background_rgb`` either
+    way. Training uses ``constant``: in a closed room every training ray ends on a surface, and
+    over a black background a pixel's colour can only come from density, which is what depth
+    and LiDAR need (over ``last_sample`` the micro test's model rendered its colours with
+    almost no density, and no depth). Renderers may switch a trained model to ``last_sample``
+    (``nsim render``'s ``background``): a ray through space no training view saw (a ceiling
+    the capture never looked at) then shows the field's colour there instead of black.
     """
 
     kind: str = param("proposal", choices=SAMPLER_KINDS)
@@ -72,6 +83,7 @@ class SamplerConfig:
     proposal_hash_base_resolution: int = param(16, ge=2)
     proposal_hash_max_resolutions: tuple[int, ...] = (128, 256)
     proposal_hidden_dim: int = param(16, ge=4, le=256)
+    background: str = param("constant", choices=BACKGROUNDS)
     background_rgb: tuple[float, float, float] = (0.0, 0.0, 0.0)
     grid_cell_m: float = param(0.1, gt=0.0)
     grid_step_m: float = param(0.02, gt=0.0)
@@ -121,7 +133,9 @@ class RaySamples:
 class RenderOutput:
     """Per-ray results. rgb: (R, 3); depth: (R,) normalised expected range (``sum w t / sum w``,
     metres along the unit ray); depth_median: (R,) median range; accumulation: (R,) opacity;
-    weights: (R, S) of the final samples; samples: the final samples (when asked for).
+    weights: (R, S) of the final samples; samples: the final samples (when asked for);
+    background: (R, 3) the colour the ray's remaining light ``1 - accumulation`` was composited
+    over (``SamplerConfig.background``), for renderers that merge more samples later.
     Training extras: the final and proposal bins (spacing coordinate) and proposal weights."""
 
     rgb: Tensor
@@ -130,6 +144,7 @@ class RenderOutput:
     accumulation: Tensor
     weights: Tensor
     samples: RaySamples | None = None
+    background: Tensor | None = None
     bins: Tensor | None = None
     proposal_weights: list[Tensor] | None = None
     proposal_bins: list[Tensor] | None = None
@@ -152,8 +167,9 @@ def composite(samples: RaySamples, background_rgb: Tensor | None = None) -> Rend
     if background_rgb is not None:
         out = out + (1.0 - acc)[:, None] * background_rgb
     mid = 0.5 * (t0 + t1)
+    bg = None if background_rgb is None else background_rgb.to(out).expand_as(out)
     return RenderOutput(out, volume.expected_depth(weights, mid, acc), volume.median_depth(weights, mid), acc, weights,
-                        RaySamples(t0, t1, sigma, rgb))
+                        RaySamples(t0, t1, sigma, rgb), background=bg)
 
 
 class SceneModel(nn.Module):
@@ -195,6 +211,17 @@ class SceneModel(nn.Module):
             return self.render_grid(rays, generator=generator, appearance=appearance, return_samples=return_samples)
         return self.render_proposal(rays, generator=generator, anneal=anneal, appearance=appearance,
                                     return_samples=return_samples, proposal_grad=proposal_grad)
+
+    def ray_background(self, last_rgb: Tensor, has_last: Tensor | None = None) -> Tensor:
+        """Per-ray background ``(R, 3)`` (``SamplerConfig.background``): ``last_rgb (R, 3)``, the
+        colour of each ray's last sample, where ``has_last (R,)`` (default: every ray), else
+        ``background_rgb``."""
+        const = self.background.to(last_rgb.dtype).expand_as(last_rgb)
+        if self.sampler_cfg.background == "constant":
+            return const
+        if has_last is None:
+            return last_rgb
+        return torch.where(has_last[:, None], last_rgb, const)
 
     # ------------------------------------------------------------------ the occupancy-grid sampler
     def _grid_query(self, x_world: Tensor) -> Tensor:
@@ -331,7 +358,10 @@ class SceneModel(nn.Module):
         rgb_p = torch.zeros(n, s_pad, 3, device=device, dtype=rgb.dtype).index_put((ray, slot), rgb)
         weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
         acc = weights.sum(-1)
-        out_rgb = volume.accumulate(weights, rgb_p) + (1.0 - acc)[:, None] * self.background
+        # each ray's last kept sample: slot counts - 1 (rays without samples: background_rgb)
+        last = rgb_p[torch.arange(n, device=device), (counts - 1).clamp(min=0)] if n else rgb_p[:, 0]
+        bg = self.ray_background(last, counts > 0)
+        out_rgb = volume.accumulate(weights, rgb_p) + (1.0 - acc)[:, None] * bg
         mid_p = 0.5 * (t0_p + t1_p)
         depth = torch.where(acc > volume.EPS, volume.expected_depth(weights, mid_p, acc), rays.far)
         return RenderOutput(
@@ -341,6 +371,7 @@ class SceneModel(nn.Module):
             accumulation=acc,
             weights=weights,
             samples=RaySamples(t0_p, t1_p, sigma_p, rgb_p) if return_samples else None,
+            background=bg,
         )
 
     @torch.no_grad()
@@ -411,7 +442,8 @@ class SceneModel(nn.Module):
         rgb = self.field.color(geo, dirs, codes).view(n, s, 3)
         weights, _ = volume.render_weights(sigma, t1 - t0)
         acc = weights.sum(-1)
-        out_rgb = volume.accumulate(weights, rgb) + (1.0 - acc)[:, None] * self.background
+        bg = self.ray_background(rgb[:, -1])
+        out_rgb = volume.accumulate(weights, rgb) + (1.0 - acc)[:, None] * bg
         return RenderOutput(
             rgb=out_rgb,
             depth=volume.expected_depth(weights, mid, acc),
@@ -419,6 +451,7 @@ class SceneModel(nn.Module):
             accumulation=acc,
             weights=weights,
             samples=RaySamples(t0, t1, sigma, rgb) if return_samples else None,
+            background=bg,
             bins=bins,
             proposal_weights=prop_weights,
             proposal_bins=prop_bins,

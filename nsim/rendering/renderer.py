@@ -121,14 +121,44 @@ def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg:
         if cfg.stop_transmittance > 0:
             done |= acc.trans[alive] < cfg.stop_transmittance
         alive = alive[~done]
-    rgb = acc.rgb + (1.0 - acc.acc)[:, None] * model.background
+    bg = _march_background(model, rays, cfg, acc.trans, appearance)
+    rgb = acc.rgb + (1.0 - acc.acc)[:, None] * bg
     t_mid_all = rays.near[:, None] + (torch.arange(n_steps, device=device)[None, :] + 0.5) * cfg.step_m
     depth = acc.depth / acc.acc.clamp(min=volume.EPS)
     depth = torch.where(acc.acc > volume.EPS, depth, rays.far)
     median = volume.median_depth(weights_all, torch.minimum(t_mid_all, rays.far[:, None]))
     samples = _pack_samples(kept, n, cfg.step_m, rays.far, device) if return_samples else None
     return RenderOutput(rgb=rgb, depth=depth, depth_median=median, accumulation=acc.acc, weights=weights_all,
-                        samples=samples)
+                        samples=samples, background=bg)
+
+
+def _march_background(model: SceneModel, rays: Rays, cfg: MarchConfig, trans: Tensor, appearance) -> Tensor:
+    """Per-ray background ``(R, 3)`` for the marcher (``SamplerConfig.background``).
+
+    ``last_sample``: the field's colour at the midpoint of the ray's last marching step (the
+    interval that ends at ``far``), evaluated whether or not the occupancy grid marks that cell,
+    so the dense and the grid march agree. Only rays that marched to ``far`` need it; a ray that
+    stopped early (transmittance below ``stop_transmittance``) has at most that much light left
+    and takes ``background_rgb``, as does a ray of zero length."""
+    n = len(rays)
+    const = model.background.expand(n, 3)
+    if model.sampler_cfg.background == "constant" or n == 0:
+        return const.clone()
+    length = (rays.far - rays.near).clamp(min=0.0)
+    reached = length > 0
+    if cfg.stop_transmittance > 0:
+        reached &= trans >= cfg.stop_transmittance
+    idx = torch.nonzero(reached, as_tuple=True)[0]
+    last = torch.zeros(n, 3, device=rays.origins.device)
+    if idx.numel():
+        k_last = torch.ceil(length[idx] / cfg.step_m) - 1  # index of the step that ends at far
+        t0 = rays.near[idx] + k_last * cfg.step_m
+        mid = 0.5 * (t0 + torch.minimum(t0 + cfg.step_m, rays.far[idx]))
+        x = rays.origins[idx] + rays.dirs[idx] * mid[:, None]
+        _, geo = model.field.density(x)
+        codes = model.field.appearance_codes(None, idx.numel(), appearance, model.train_mask)
+        last[idx] = model.field.color(geo, rays.dirs[idx], codes).to(last.dtype)
+    return model.ray_background(last, reached)
 
 
 def _pack_samples(kept, n: int, step_m: float, far: Tensor, device) -> RaySamples:
@@ -211,6 +241,7 @@ def _concat(outs: list[RenderOutput]) -> RenderOutput:
         accumulation=torch.cat([o.accumulation for o in outs]),
         weights=_pad_cat([o.weights for o in outs], 0.0),
         samples=samples,
+        background=torch.cat([o.background for o in outs]) if outs[0].background is not None else None,
     )
 
 

@@ -59,7 +59,8 @@ from nsim.errors import InputError
 from nsim.rendering.renderer import MarchConfig
 
 STAGE = "render"
-VERSION = 2  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
+VERSION = 3  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
+# 3: ``background``: a ray's remaining light over its last sample's colour
 log = logging.getLogger(__name__)
 
 DEPTH_ATTRIBUTE = {
@@ -86,6 +87,11 @@ class Config:
     depth_estimate: str = param("median", choices=("median", "expected"),
                                 help="ray depth: the median of the weights or the normalised expected depth")
     min_accumulation: float = param(0.5, ge=0.0, le=1.0, help="opacity below which a ray has no return")
+    background: str = param("last_sample", choices=("last_sample", "scene"),
+                            help="what a ray's remaining light is composited over: last_sample, the scene field's "
+                                 "colour at the ray's last sample (a ray through space no capture view saw, e.g. "
+                                 "a ceiling, shows the field's colour there, not black; nerfacto's default); "
+                                 "scene: the model's training background (sampler.background)")
     rgb_exr: bool = param(False, help="also write linear RGB EXR")
     noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded)")
     culling: bool = param(True, help="query people's NeRFs only on rays that can see their posed box (2D bound for "
@@ -316,6 +322,8 @@ class ShardRenderer:
         self.device = torch.device(job["device"])
         scene_dir = Path(job["scene_dir"])
         self.model = load_model(scene_dir, device=self.device).eval()
+        if self.cfg.background != "scene":
+            self.model.sampler_cfg = dataclasses.replace(self.model.sampler_cfg, background=self.cfg.background)
         self.grid = OccupancyGrid.load(scene_dir / "occupancy_grid.npy", device=self.device)
         self.rig = None
         if job["rig"] is not None:
@@ -591,7 +599,7 @@ class HumanSet:
         if len(idx):
             merged = RaySamples(*(torch.cat([getattr(q, f) for q in parts], dim=1)
                                   for f in ("t_starts", "t_ends", "sigma", "rgb")))
-            comp = composite(merged, scene_model.background)
+            comp = composite(merged, scene_out.background[idx])  # the scene's per-ray background
             owner = torch.cat(owners, dim=1)
             order = torch.argsort(merged.t_starts, dim=-1, stable=True)
             owner = torch.gather(owner, -1, order)

@@ -372,11 +372,13 @@ class HumanTrainer:
             return self.bg_images[frames, v, u].float() / 255.0
         return self.images[frames, v, u].float() / 255.0
 
-    def _scene_samples(self, origins: Tensor, dirs: Tensor) -> RaySamples:
+    def _scene_samples(self, origins: Tensor, dirs: Tensor) -> tuple[RaySamples, Tensor]:
+        """The scene model's samples on these rays and its per-ray background ``(B, 3)``."""
         s = self.background_model.sampler_cfg
         rays = make_rays(origins, dirs, s.near_m, s.far_m, self.background_model.aabb if s.clip_rays_to_box else None)
         with torch.no_grad():
-            return self.background_model.render(rays, return_samples=True).samples
+            out = self.background_model.render(rays, return_samples=True)
+        return out.samples, out.background
 
     def render_rays(self, frames: Tensor, v: Tensor, u: Tensor, generator: torch.Generator | None = None):
         """Composite of the person over the background for pixels ``(frames, v, u)``: a
@@ -386,8 +388,8 @@ class HumanTrainer:
         human = self.model.render_samples(origins, dirs, self.joint_transforms, near=self.cfg.data.near_m,
                                           generator=generator, pose_index=frames)
         if self.background_model is not None:
-            scene = self._scene_samples(origins, dirs)
-            return render_merged(human, scene, background_rgb=self.background_model.background)
+            scene, scene_bg = self._scene_samples(origins, dirs)
+            return render_merged(human, scene, background_rgb=scene_bg)
         return render_merged(human, background_rgb=self._background(frames, v, u))
 
     # ------------------------------------------------------------------ one step

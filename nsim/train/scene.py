@@ -524,7 +524,7 @@ class SceneTrainer:
             if cfg.loss.random_background and step >= cfg.loss.random_background_start * cfg.optim.steps:
                 # the same volume rendering over a random colour per ray: (1 - acc) * bg replaces (1 - acc) * background
                 bg = torch.rand((len(rays), 3), generator=g).to(self.device)
-                rgb = rgb + (1.0 - out.accumulation.float())[:, None] * (bg - self.model.background)
+                rgb = rgb + (1.0 - out.accumulation.float())[:, None] * (bg - out.background.float())
             mse = torch.mean((rgb - target) ** 2)
             loss = mse
             if cfg.loss.opacity_weight > 0 and step >= cfg.loss.opacity_start * cfg.optim.steps:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from nsim.rendering.model import SamplerConfig
+from nsim.rendering.model import SamplerConfig, SceneModel
 
 
 def render_weights_loop(sigma: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
@@ -69,10 +69,12 @@ class BoxField(nn.Module):
 class ToyModel(nn.Module):
     """A ``SceneModel`` stand-in around a :class:`BoxField` (for the marching renderer)."""
 
-    def __init__(self, field: BoxField, aabb) -> None:
+    ray_background = SceneModel.ray_background
+
+    def __init__(self, field: BoxField, aabb, background: str = "constant") -> None:
         super().__init__()
         self.field = field
         self.register_buffer("aabb", torch.tensor(aabb))
         self.register_buffer("background", torch.zeros(3))
         self.register_buffer("train_mask", torch.ones(1, dtype=torch.bool))
-        self.sampler_cfg = SamplerConfig()
+        self.sampler_cfg = SamplerConfig(background=background)

@@ -38,7 +38,8 @@ def _rays(n=64, seed=0):
 
 def _dense_reference(model: SceneModel, rays, step: float, occupied=None):
     """Every marching interval from near to the box (optionally only those in occupied cells),
-    one ray at a time, rendered with ``volume``: rgb (R, 3), expected depth (R,)."""
+    one ray at a time, rendered with ``volume`` over the last sample's colour (``background:
+    last_sample``) or ``background_rgb``: rgb (R, 3), expected depth (R,)."""
     rgbs, depths = [], []
     for r in range(len(rays)):
         near, far = float(rays.near[r]), float(rays.far[r])
@@ -58,7 +59,8 @@ def _dense_reference(model: SceneModel, rays, step: float, occupied=None):
         rgb = model.field.color(geo, rays.dirs[r].expand(len(t0), 3), None)
         w, _ = volume.render_weights(sigma[None], (t1 - t0)[None])
         acc = w.sum()
-        rgbs.append((w[0, :, None] * rgb).sum(0) + (1 - acc) * model.background)
+        bg = rgb[-1] if model.sampler_cfg.background == "last_sample" else model.background  # the last sample's colour
+        rgbs.append((w[0, :, None] * rgb).sum(0) + (1 - acc) * bg)
         depths.append(volume.expected_depth(w, (0.5 * (t0 + t1))[None], acc[None])[0])
     return torch.stack(rgbs), torch.stack(depths)
 

@@ -3,6 +3,7 @@ poses-mode rendering against the capture, resume after a failed shard, errors, t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -118,6 +119,8 @@ def test_poses_mode_renders_the_frames_cameras(world):
     model = load_model(scene.path)
     grid = OccupancyGrid.load(scene.path / "occupancy_grid.npy")
     cfg = json.loads(art.file("manifest.json").read_text())["config"]
+    assert cfg["background"] == "last_sample" and model.sampler_cfg.background == "constant"
+    model.sampler_cfg = dataclasses.replace(model.sampler_cfg, background="last_sample")
     view = render_camera(model, frame.camera, frame.cam_to_world, method=cfg["method"], grid=grid,
                          march_cfg=MarchConfig(**cfg["march"]))
     assert np.array_equal(read_image(art.file("frames/rgb/000010.png")), to_uint8(view.rgb))

@@ -263,13 +263,21 @@ def test_grid_model_trains_resumes_and_reloads(tiny_data, tmp_path):
 
 def test_random_background_composites_transparent_rays_over_noise(tiny_data):
     """With an empty field (density ~ 0, accumulation ~ 0) a ray's training colour is the
-    background: black without the option (loss = mean(target^2)), a uniform random colour with
-    it (expected loss = 1/12 + mean((target - 1/2)^2)); reruns are identical."""
+    background: black without the option (``background: constant``, loss = mean(target^2)), a
+    uniform random colour with it (expected loss = 1/12 + mean((target - 1/2)^2)), also over a
+    ``last_sample`` background; reruns are identical."""
     empty = {"density_bias": -20.0}
     losses = {"interlevel_weight": 0.0, "distortion_weight": 0.0}
     optim = {"rays_per_batch": 4096}
-    plain = SceneTrainer(tiny_data, micro_cfg(field=empty, loss=losses, optim=optim), seed=0)
-    noisy = SceneTrainer(tiny_data, micro_cfg(field=empty, loss={**losses, "random_background": True}, optim=optim), seed=0)
+    black_bg = {"background": "constant"}
+    plain = SceneTrainer(tiny_data, micro_cfg(field=empty, loss=losses, optim=optim, sampler=black_bg), seed=0)
+    noisy = SceneTrainer(tiny_data, micro_cfg(field=empty, loss={**losses, "random_background": True}, optim=optim,
+                                              sampler=black_bg), seed=0)
+    last = SceneTrainer(tiny_data, micro_cfg(field=empty, loss={**losses, "random_background": True}, optim=optim,
+                                             sampler={"background": "last_sample"}), seed=0)
+    assert last.train_step().loss == pytest.approx(noisy.train_step().loss, rel=1e-4)
+    noisy = SceneTrainer(tiny_data, micro_cfg(field=empty, loss={**losses, "random_background": True}, optim=optim,
+                                              sampler=black_bg), seed=0)
     _, target, _ = plain.batch(0)
     target = target.double()
     black = float(torch.mean(target**2))
