@@ -32,7 +32,7 @@ from nsim.rendering.rays import Rays
 from nsim.rendering.samplers import SPACINGS, pdf_resample, spacing_to_t, uniform_bins
 
 SAMPLER_KINDS = ("proposal", "grid")
-BACKGROUNDS = ("last_sample", "constant")
+BACKGROUNDS = ("constant", "last_sample")
 
 
 @dataclass(frozen=True)
@@ -57,14 +57,13 @@ class SamplerConfig:
     the field's density at a random point in the cell.
 
     background: what the light a ray has left after its last sample (``1 - accumulation``) is
-    composited over: ``constant``, ``background_rgb``; ``last_sample`` (nerfacto's default), the
-    colour of the ray's last sample. Rays with no sample at all get ``background_rgb`` either
-    way. Training uses ``constant``: in a closed room every training ray ends on a surface, and
-    over a black background a pixel's colour can only come from density, which is what depth
-    and LiDAR need (over ``last_sample`` the micro test's model rendered its colours with
-    almost no density, and no depth). Renderers may switch a trained model to ``last_sample``
-    (``nsim render``'s ``background``): a ray through space no training view saw (a ceiling
-    the capture never looked at) then shows the field's colour there instead of black.
+    composited over: ``constant`` (the default), ``background_rgb``; ``last_sample`` (nerfacto's
+    default), the colour of the ray's last sample (rays with no sample: ``background_rgb``). In a
+    closed room every training ray ends on a surface, and over black a pixel's colour can only
+    come from density, which depth and LiDAR need: over ``last_sample``, or over a grey
+    constant, the micro test's model rendered its colours with almost no density and had no
+    depth at all. Where the capture saw nothing (a ceiling it never looked at) the ray keeps
+    its light; ``nsim render``'s ``fill`` decides what such pixels show.
     """
 
     kind: str = param("proposal", choices=SAMPLER_KINDS)
@@ -213,11 +212,11 @@ class SceneModel(nn.Module):
                                     return_samples=return_samples, proposal_grad=proposal_grad)
 
     def ray_background(self, last_rgb: Tensor, has_last: Tensor | None = None) -> Tensor:
-        """Per-ray background ``(R, 3)`` (``SamplerConfig.background``): ``last_rgb (R, 3)``, the
-        colour of each ray's last sample, where ``has_last (R,)`` (default: every ray), else
-        ``background_rgb``."""
+        """Per-ray background ``(R, 3)`` (``SamplerConfig.background``): for ``last_sample``,
+        ``last_rgb (R, 3)``, the colour of each ray's last sample, where ``has_last (R,)`` (default:
+        every ray); otherwise, and for rays without a last sample, ``background_rgb``."""
         const = self.background.to(last_rgb.dtype).expand_as(last_rgb)
-        if self.sampler_cfg.background == "constant":
+        if self.sampler_cfg.background != "last_sample":
             return const
         if has_last is None:
             return last_rgb
@@ -504,4 +503,7 @@ def load_model(model_dir, device: str | torch.device = "cpu") -> SceneModel:
     model = SceneModel(field_cfg, sampler_cfg, torch.tensor(meta["aabb_m"]), meta["n_images"], backend=backend)
     state = torch.load(model_dir / MODEL_FILE, map_location="cpu", weights_only=True)
     model.load_state_dict(state)
+    # the training images' mean colour (scene trainer; absent from older checkpoints): nsim render's fill
+    mean = meta.get("image_mean_rgb")
+    model.image_mean_rgb = None if mean is None else tuple(float(c) for c in mean)
     return model.to(device).eval()

@@ -139,10 +139,11 @@ def _march_background(model: SceneModel, rays: Rays, cfg: MarchConfig, trans: Te
     interval that ends at ``far``), evaluated whether or not the occupancy grid marks that cell,
     so the dense and the grid march agree. Only rays that marched to ``far`` need it; a ray that
     stopped early (transmittance below ``stop_transmittance``) has at most that much light left
-    and takes ``background_rgb``, as does a ray of zero length."""
+    and takes the model's ``background`` buffer, as does a ray of zero length; the other
+    settings use the buffer for every ray."""
     n = len(rays)
     const = model.background.expand(n, 3)
-    if model.sampler_cfg.background == "constant" or n == 0:
+    if model.sampler_cfg.background != "last_sample" or n == 0:
         return const.clone()
     length = (rays.far - rays.near).clamp(min=0.0)
     reached = length > 0

@@ -60,7 +60,7 @@ from nsim.rendering.renderer import MarchConfig
 
 STAGE = "render"
 VERSION = 3  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
-# 3: ``background``: a ray's remaining light over its last sample's colour
+# 3: ``fill`` (no-return pixels over the training images' mean colour) and ``background``
 log = logging.getLogger(__name__)
 
 DEPTH_ATTRIBUTE = {
@@ -87,11 +87,15 @@ class Config:
     depth_estimate: str = param("median", choices=("median", "expected"),
                                 help="ray depth: the median of the weights or the normalised expected depth")
     min_accumulation: float = param(0.5, ge=0.0, le=1.0, help="opacity below which a ray has no return")
-    background: str = param("last_sample", choices=("last_sample", "scene"),
-                            help="what a ray's remaining light is composited over: last_sample, the scene field's "
-                                 "colour at the ray's last sample (a ray through space no capture view saw, e.g. "
-                                 "a ceiling, shows the field's colour there, not black; nerfacto's default); "
-                                 "scene: the model's training background (sampler.background)")
+    fill: str = param("image_mean", choices=("image_mean", "none"),
+                      help="camera pixels with no return (accumulation below min_accumulation, depth inf: no "
+                           "surface, e.g. a ceiling the capture never looked at): image_mean composites the ray's "
+                           "remaining light over the training images' mean colour (kept with the scene checkpoint) "
+                           "instead of the model's background; none: as the model renders them")
+    background: str = param("scene", choices=("scene", "last_sample"),
+                            help="what a ray's remaining light is composited over: scene, the model's own "
+                                 "background (sampler.background, as it was trained); last_sample, the scene "
+                                 "field's colour at the ray's last sample (nerfacto's default)")
     rgb_exr: bool = param(False, help="also write linear RGB EXR")
     noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded)")
     culling: bool = param(True, help="query people's NeRFs only on rays that can see their posed box (2D bound for "
@@ -324,6 +328,14 @@ class ShardRenderer:
         self.model = load_model(scene_dir, device=self.device).eval()
         if self.cfg.background != "scene":
             self.model.sampler_cfg = dataclasses.replace(self.model.sampler_cfg, background=self.cfg.background)
+        self.fill_rgb = None  # (3,) colour of no-return pixels (``fill``)
+        if self.cfg.fill == "image_mean":
+            mean = getattr(self.model, "image_mean_rgb", None)
+            if mean is None:
+                log.warning("%s: the scene checkpoint has no image_mean_rgb (written before nsim kept it); "
+                            "no-return pixels are not filled", scene_dir)
+            else:
+                self.fill_rgb = torch.tensor(mean, dtype=torch.float32, device=self.device)
         self.grid = OccupancyGrid.load(scene_dir / "occupancy_grid.npy", device=self.device)
         self.rig = None
         if job["rig"] is not None:
@@ -356,9 +368,13 @@ class ShardRenderer:
             out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg)
         r = out.depth_median if cfg.depth_estimate == "median" else out.depth
         acc = out.accumulation
-        r = torch.where(acc >= cfg.min_accumulation, r, torch.tensor(float("inf"), device=r.device))
+        surface = acc >= cfg.min_accumulation
+        r = torch.where(surface, r, torch.tensor(float("inf"), device=r.device))
         v = torch.as_tensor(valid, device=r.device)
-        rgb = torch.where(v[:, None], out.rgb.clamp(0.0, 1.0), 0.0)
+        rgb = out.rgb
+        if self.fill_rgb is not None:  # no return: the remaining light over the training images' mean colour
+            rgb = torch.where(surface[:, None], rgb, rgb + (1.0 - acc)[:, None] * (self.fill_rgb - out.background))
+        rgb = torch.where(v[:, None], rgb.clamp(0.0, 1.0), 0.0)
         return {"rgb": rgb.cpu().numpy(), "range": torch.where(v, r, float("nan")).cpu().numpy(),
                 "acc": acc.cpu().numpy(), "instance": np.where(valid, instance, 0).astype(np.uint16)}
 

@@ -38,7 +38,7 @@ from nsim.errors import InputError
 from nsim.train.scene import TrainSceneConfig
 
 STAGE = "train_scene"
-VERSION = 1
+VERSION = 2  # 2: scene.json keeps the training images' mean colour (image_mean_rgb, for nsim render's fill)
 
 log = logging.getLogger(__name__)
 

@@ -702,8 +702,14 @@ def abs_rel(pred_depth: np.ndarray, gt_depth: np.ndarray) -> float:
 def constant_color_psnr(data: SceneData, holdout_every: int) -> float:
     """PSNR of the training images' mean colour on the held-out frames (the trivial baseline)."""
     train, held = data.split(holdout_every)
-    mean = data.images[train].reshape(-1, 3).astype(np.float64).mean(0) / 255.0
+    mean = np.asarray(image_mean_rgb(data, train))
     return float(np.mean([psnr(np.broadcast_to(mean, data.images[i].shape), data.images[i] / 255.0) for i in held]))
+
+
+def image_mean_rgb(data: SceneData, train_ids) -> list[float]:
+    """The mean colour of the training images' pixels, in [0, 1] (float64 sums, in a fixed order):
+    the least-squares guess for a pixel the capture never showed (``nsim render``'s ``fill``)."""
+    return [float(c) for c in data.images[np.asarray(train_ids)].reshape(-1, 3).mean(0, dtype=np.float64) / 255.0]
 
 
 # ====================================================================== the loop
@@ -864,6 +870,7 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
         "train_images": [int(i) for i in trainer.train_ids],
         "eval_images": [int(i) for i in trainer.eval_ids],
         "steps": trainer.step,
+        "image_mean_rgb": image_mean_rgb(data, trainer.train_ids),
     })
     aabb = trainer.aabb.tolist()
     (out_dir / "bounds.json").write_text(json.dumps({"units": "m", "frame": "world, z up", "aabb_min_m": aabb[0],

@@ -86,6 +86,34 @@ def test_spot_render_files(spot_render, world):
     assert np.allclose(robot.poses_se3()[1], traj["robot_pose_se3"][meta["frames"][1]["index"]], atol=1e-6)
 
 
+def test_fill_paints_only_the_pixels_without_a_return(spot_render, world):
+    """``fill: image_mean`` (the default) against ``none``: every pixel with a surface (finite depth) is
+    the same; pixels without one take their remaining light over the training images'
+    mean colour instead of black, so they only get brighter, and some do."""
+    from nsim.io.exr import read_depth_exr
+    from nsim.io.images import read_image
+    from nsim.rendering import load_model
+    from nsim.sensors.rig import Rig
+
+    assert load_model(world.get(world.resolve("scene/t")).path).image_mean_rgb is not None
+    assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--trajectory", "trajectory/t",
+                 "--scene", "scene/t", "--rig", str(SPOT), "--preset", "tiny", "--set", "fill=none",
+                 "--tag", "render/spot-nofill"]) == 0
+    plain = world.get(world.resolve("render/spot-nofill"))
+    rig = Rig.from_resolved(json.loads(spot_render.file("rig.json").read_text()))
+    changed = 0
+    for f in json.loads(spot_render.file("render.json").read_text())["frames"]:
+        for s in (s for s in rig.sensors if s.type != "lidar"):
+            name = f"{s.name}/rgb/{f['index']:06d}.png"
+            a, b = read_image(spot_render.file(name)).astype(int), read_image(plain.file(name)).astype(int)
+            # no surface: depth inf, or NaN where a fisheye ray beyond 90 degrees has no z-depth (or outside the circle)
+            none = ~np.isfinite(read_depth_exr(spot_render.file(f"{s.name}/depth/{f['index']:06d}.exr")))
+            assert np.array_equal(a[~none], b[~none])
+            assert (a[none] >= b[none] - 1).all()
+            changed += int((a != b).any(-1).sum())
+    assert changed > 0
+
+
 def test_cached_rerun_and_other_rig(spot_render, world, capsys):
     capsys.readouterr()
     assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--trajectory", "trajectory/t",
@@ -119,8 +147,6 @@ def test_poses_mode_renders_the_frames_cameras(world):
     model = load_model(scene.path)
     grid = OccupancyGrid.load(scene.path / "occupancy_grid.npy")
     cfg = json.loads(art.file("manifest.json").read_text())["config"]
-    assert cfg["background"] == "last_sample" and model.sampler_cfg.background == "constant"
-    model.sampler_cfg = dataclasses.replace(model.sampler_cfg, background="last_sample")
     view = render_camera(model, frame.camera, frame.cam_to_world, method=cfg["method"], grid=grid,
                          march_cfg=MarchConfig(**cfg["march"]))
     assert np.array_equal(read_image(art.file("frames/rgb/000010.png")), to_uint8(view.rgb))
@@ -131,6 +157,15 @@ def test_poses_mode_renders_the_frames_cameras(world):
     gt = read_depth_exr(sorted((cap.path / "depth").iterdir())[10])
     assert pred.shape == gt.shape == (48, 64)
     assert 0.2 < np.median(pred[ok]) / np.median(gt[ok]) < 5.0
+    # background=last_sample: the stage switches the loaded model to it (the tiny scene keeps light to spare)
+    assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--poses", "capture/t", "--scene", "scene/t",
+                 "--preset", "tiny", "--set", "max_frames=2", "--set", "image_scale=1.0", "--set", "method=march",
+                 "--set", "background=last_sample", "--tag", "render/poses-last"]) == 0
+    last = read_image(world.get(world.resolve("render/poses-last")).file("frames/rgb/000010.png"))
+    model.sampler_cfg = dataclasses.replace(model.sampler_cfg, background="last_sample")
+    view_last = render_camera(model, frame.camera, frame.cam_to_world, method=cfg["method"], grid=grid,
+                              march_cfg=MarchConfig(**cfg["march"]))
+    assert np.array_equal(last, to_uint8(view_last.rgb)) and not np.array_equal(last, to_uint8(view.rgb))
 
 
 def test_failed_shard_resumes_and_matches_a_clean_run(world, tmp_path, monkeypatch):

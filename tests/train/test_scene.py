@@ -289,6 +289,26 @@ def test_random_background_composites_transparent_rays_over_noise(tiny_data):
     assert again.train_step().loss == got
 
 
+def test_checkpoint_keeps_the_training_images_mean_colour(tiny_data, tmp_path):
+    """``image_mean_rgb`` in scene.json (``nsim render``'s fill): the mean colour of the training
+    images only (held-out frames excluded); checkpoints without it load with None."""
+    from nsim.rendering.model import load_model
+    from nsim.train.scene import export_scene, train_scene
+
+    cfg = micro_cfg(optim={"steps": 2})
+    result = train_scene(tiny_data, cfg, tmp_path / "run", seed=0)
+    train_ids, held = tiny_data.split(cfg.data.holdout_every)
+    assert len(held) > 0
+    want = tiny_data.images[np.asarray(train_ids)].reshape(-1, 3).astype(np.float64).mean(0) / 255.0
+    assert not np.allclose(want, tiny_data.images.reshape(-1, 3).mean(0) / 255.0, atol=1e-7)  # the split matters
+    export_scene(tmp_path / "out", result)
+    assert np.allclose(load_model(tmp_path / "out").image_mean_rgb, want, atol=1e-12)
+    meta = json.loads((tmp_path / "out" / "scene.json").read_text())
+    del meta["image_mean_rgb"]
+    (tmp_path / "out" / "scene.json").write_text(json.dumps(meta))
+    assert load_model(tmp_path / "out").image_mean_rgb is None
+
+
 def _binary_entropy(acc):
     a = acc.clamp(1e-4, 1 - 1e-4)
     return -(a * torch.log(a) + (1 - a) * torch.log1p(-a)).mean()
