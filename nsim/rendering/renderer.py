@@ -142,9 +142,8 @@ def _march_background(model: SceneModel, rays: Rays, cfg: MarchConfig, trans: Te
     and takes the model's ``background`` buffer, as does a ray of zero length; the other
     settings use the buffer for every ray."""
     n = len(rays)
-    const = model.background.expand(n, 3)
     if model.sampler_cfg.background != "last_sample" or n == 0:
-        return const.clone()
+        return model.background.expand(n, 3)
     length = (rays.far - rays.near).clamp(min=0.0)
     reached = length > 0
     if cfg.stop_transmittance > 0:

@@ -330,7 +330,7 @@ class ShardRenderer:
             self.model.sampler_cfg = dataclasses.replace(self.model.sampler_cfg, background=self.cfg.background)
         self.fill_rgb = None  # (3,) colour of no-return pixels (``fill``)
         if self.cfg.fill == "image_mean":
-            mean = getattr(self.model, "image_mean_rgb", None)
+            mean = self.model.image_mean_rgb  # set by load_model; None for checkpoints written before it existed
             if mean is None:
                 log.warning("%s: the scene checkpoint has no image_mean_rgb (written before nsim kept it); "
                             "no-return pixels are not filled", scene_dir)
