@@ -32,6 +32,11 @@ def _ctx(click_ctx: click.Context) -> RunContext:
     return click_ctx.find_root().obj.get()
 
 
+def _inspect(click_ctx: click.Context) -> RunContext:
+    """The context of a command that only looks: it creates no workspace and checks nothing on read."""
+    return click_ctx.find_root().obj.get(create=False, checked=False)
+
+
 def _human_size(n: float) -> str:
     for unit in ("B", "KB", "MB", "GB"):
         if n < 1024 or unit == "GB":
@@ -90,10 +95,11 @@ class _LazyContext:
         self._args = (root, device, seed, progress)
         self._ctx: RunContext | None = None
 
-    def get(self) -> RunContext:
+    def get(self, create: bool = True, checked: bool = True) -> RunContext:
         if self._ctx is None:
             root, device, seed, progress = self._args
-            self._ctx = RunContext(store=Store(root), device_spec=device, seed=seed, progress=progress)
+            store = Store(root, create=create, checked=checked)
+            self._ctx = RunContext(store=store, device_spec=device, seed=seed, progress=progress)
         return self._ctx
 
 
@@ -104,13 +110,18 @@ class _LazyContext:
 @click.pass_context
 def ls_cmd(click_ctx: click.Context, kind: str | None, as_json: bool):
     """List artifacts: kind, refs, id, size, age."""
-    store = _ctx(click_ctx).store
+    store = _inspect(click_ctx).store
     by_id: dict[str, list[str]] = {}
     for name, i in store.refs().items():
         by_id.setdefault(i, []).append(name)
     rows = []
+    damaged = []
     for art in store.artifacts():
-        m = art.manifest
+        try:
+            m = art.manifest
+        except NsimError as exc:
+            damaged.append(str(exc))
+            continue
         if kind and m["kind"] != kind:
             continue
         rows.append(
@@ -136,8 +147,19 @@ def ls_cmd(click_ctx: click.Context, kind: str | None, as_json: bool):
     for r in rows:
         table.add_row(r["kind"], ", ".join(r["refs"]), r["id"][:12], _human_size(r["size_bytes"]), _age(r["created_utc"]))
     Console(width=120 if not sys.stdout.isatty() else None).print(table)
+    _warn_damage(store, damaged)
+
+
+def _warn_damage(store: Store, damaged: list[str]) -> None:
+    for line in damaged:
+        click.echo(f"warning: {line}", err=True)
+    for i in store.damaged_ids():
+        click.echo(f"warning: object {i[:12]} has no manifest (an interrupted removal?); 'nsim gc' removes it "
+                   "once no ref needs it", err=True)
     for name, i in store.broken_refs().items():
         click.echo(f"warning: ref {name} points at missing artifact {i[:12]}", err=True)
+    for why in store.bad_refs().values():
+        click.echo(f"warning: {why}", err=True)
 
 
 @cli.command("show")
@@ -146,7 +168,7 @@ def ls_cmd(click_ctx: click.Context, kind: str | None, as_json: bool):
 @click.pass_context
 def show_cmd(click_ctx: click.Context, spec: str, as_json: bool):
     """Show an artifact's manifest and its lineage down to the capture."""
-    store = _ctx(click_ctx).store
+    store = _inspect(click_ctx).store
     art = store.get(store.resolve(spec))
     m = art.manifest
     if as_json:
@@ -184,9 +206,9 @@ def show_cmd(click_ctx: click.Context, spec: str, as_json: bool):
 @click.pass_context
 def verify_cmd(click_ctx: click.Context, specs: tuple[str, ...], rebuild: bool):
     """Re-hash artifacts (all by default); exit 1 naming the file on any mismatch."""
-    ctx = _ctx(click_ctx)
+    ctx = _inspect(click_ctx)
     store = ctx.store
-    ids = [store.resolve(s) for s in specs] if specs else store.all_ids()
+    ids = [store.resolve(s) for s in specs] if specs else sorted(store.all_ids() + store.damaged_ids())
     bad = 0
     for art_id in ids:
         problems = store.verify(art_id)
@@ -218,18 +240,23 @@ def verify_cmd(click_ctx: click.Context, specs: tuple[str, ...], rebuild: bool):
 
 @cli.command("gc")
 @click.option("--dry-run", is_flag=True, help="Only list what would be removed.")
+@click.option("--grace", "grace_s", type=click.FloatRange(min=0.0), default=3600.0, show_default=True,
+              help="Never remove an object younger than this many seconds.")
 @click.pass_context
-def gc_cmd(click_ctx: click.Context, dry_run: bool):
-    """Remove artifacts no ref reaches, stale run-cache entries and tmp/ debris."""
-    report = _ctx(click_ctx).store.gc(dry_run=dry_run)
+def gc_cmd(click_ctx: click.Context, dry_run: bool, grace_s: float):
+    """Remove artifacts that no ref, running process or recent publish keeps; stale cache entries; debris."""
+    report = _inspect(click_ctx).store.gc(dry_run=dry_run, grace_s=grace_s)
     verb = "would remove" if dry_run else "removed"
+    for i in report.restored:
+        click.echo(f"kept object {i[:12]} (a ref or a running process took it during this gc)")
     for i in report.objects:
         click.echo(f"{verb} object {i[:12]}")
     for t in report.tmp:
         click.echo(f"{verb} tmp/{t}")
     click.echo(
         f"{verb} {len(report.objects)} objects ({_human_size(report.bytes_freed)}), "
-        f"{len(report.actions)} cache entries, {len(report.tmp)} tmp entries"
+        f"{len(report.actions)} cache entries, {len(report.tmp)} tmp entries; "
+        f"kept {report.kept_young} younger than {grace_s:g} s and {report.kept_leased} held by running processes"
     )
 
 
@@ -240,7 +267,7 @@ def gc_cmd(click_ctx: click.Context, dry_run: bool):
 @click.pass_context
 def tag_cmd(click_ctx: click.Context, spec: str, name: str, delete: bool):
     """Point the ref NAME (e.g. scene/lab) at an artifact."""
-    store = _ctx(click_ctx).store
+    store = _inspect(click_ctx).store
     if delete:
         store.delete_ref(name)
         click.echo(f"deleted ref {name}")

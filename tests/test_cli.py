@@ -32,6 +32,9 @@ BAD_INVOCATIONS = [
 
 @pytest.mark.parametrize("args,message", BAD_INVOCATIONS, ids=[" ".join(a) for a, _ in BAD_INVOCATIONS])
 def test_bad_invocations_exit_2_with_one_line(run_cli, args, message, tmp_path):
+    from nsim.workspace.store import Store
+
+    Store(tmp_path / "ws")  # an empty workspace: the read-only commands refuse a missing one
     code, out, err = run_cli(*args)
     assert code == 2, (out, err)
     lines = [line for line in err.splitlines() if line.strip()]

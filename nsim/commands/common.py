@@ -18,11 +18,19 @@ def run_context(click_ctx: click.Context, force: bool = False) -> RunContext:
     return ctx
 
 
+def _check_tag(click_ctx: click.Context, _param: click.Parameter, value: str | None) -> str | None:
+    """--tag is checked against the workspace before any work starts (not after the stage ran)."""
+    if value is not None:
+        click_ctx.find_root().obj.get().store.check_ref_destination(value)
+    return value
+
+
 def stage_options(stage: str):
     """The options every stage command shares: --preset, --config, --set, --force, --tag."""
 
     def deco(f):
-        f = click.option("--tag", "tag", default=None, help="Also point this ref (e.g. capture/lab) at the result.")(f)
+        f = click.option("--tag", "tag", default=None, callback=_check_tag,
+                         help="Also point this ref (e.g. capture/lab) at the result.")(f)
         f = click.option("--force", is_flag=True, help="Recompute even if the run cache has this action.")(f)
         f = click.option(
             "--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override one config value (repeatable)."

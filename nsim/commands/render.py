@@ -28,19 +28,30 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--max-restarts", type=click.IntRange(min=0), default=2, show_default=True,
               help="Ray: times a lost worker is replaced (it reloads the models); its shard is redone.")
 @click.option("--rosbag", "rosbag_path", type=click.Path(file_okay=False), default=None,
-              help="Also export the render as a ROS 2 bag directory here.")
+              help="--trajectory: also export the render as a ROS 2 bag, a new directory (its parent must exist).")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, poses, scene, rig, humans, engine,
             address, workers, gpus_per_worker, cpus_per_worker, max_restarts, rosbag_path):
     """Render RGB, depth and LiDAR of a rig along a trajectory (or a poses artifact's cameras)."""
+    from nsim.distributed import check_ray
     from nsim.errors import InputError
     from nsim.rendering.engine import EngineConfig
     from nsim.stages import render
 
     if (trajectory is None) == (poses is None):
         raise click.UsageError("give exactly one of --trajectory or --poses")
+    # every destination is checked before any work: nothing is rendered or published for a run that cannot finish
+    if rosbag_path and poses is not None:
+        raise click.UsageError(f"--rosbag {rosbag_path}: only a --trajectory render (a robot's run) exports to "
+                               "a ROS 2 bag, not a --poses render")
+    if rosbag_path:
+        from nsim.io.rosbag import check_bag_destination
+
+        check_bag_destination(rosbag_path, "--rosbag")
     if rig is not None and not Path(rig).is_file():
         raise InputError(f"--rig {rig}: no such file")
+    if engine == "ray":
+        check_ray(address)
     cfg = resolve_config(render.Config, "render", preset, config_file, overrides)
     ctx = run_context(click_ctx, force)
     eng = EngineConfig(engine=engine, address=address, workers=workers, num_gpus_per_worker=gpus_per_worker,

@@ -26,7 +26,9 @@ CameraInfo: ``K`` and ``P = [K | 0]`` in OpenCV's pixel convention (the same as 
 ``camera_calibration`` and ``image_geometry`` use it). EQUIRECTANGULAR has no ROS model (ValueError).
 
 The bag (sqlite3 by default, or mcap; bag format version 8) is written under a temporary name and
-renamed into place on ``close``; an error inside ``with BagWriter(...)`` leaves no bag.
+renamed into place on ``close``; an error inside ``with BagWriter(...)`` leaves no bag. The bag
+directory must not exist yet, not even empty (as with ``ros2 bag record -o`` and rosbags' own
+``Writer``), and its parent must be a writable directory: :func:`check_bag_destination`.
 ``read_image``, ``read_pointcloud`` and ``matrix_from_transform`` turn messages back into arrays.
 """
 
@@ -45,6 +47,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
+from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.io.images import to_uint8
 from nsim.sensors.rig import CameraSensor, OrganizedScan, Rig
@@ -58,6 +61,26 @@ TF_STATIC_QOS = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurabil
 CLOUD_DTYPE = np.dtype({"names": ["x", "y", "z", "intensity", "ring"],
                         "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
                         "offsets": [0, 4, 8, 12, 16], "itemsize": 20})
+
+
+def check_bag_destination(path: str | os.PathLike, what: str = "bag") -> Path:
+    """``path`` as a Path if a bag can be created there, else :class:`InputError` naming it.
+
+    The directory must not exist (a bag is never overwritten, not even an empty directory) and its
+    parent must be an existing, writable directory (nothing is created above the bag). ``what``
+    names the setting in the message, e.g. ``--rosbag``. Cheap: call it before the work whose
+    result goes into the bag.
+    """
+    path = Path(path)
+    if os.path.lexists(path):
+        raise InputError(f"{what} {path}: exists already; a bag is never overwritten (choose a new directory)")
+    parent = path.parent
+    if not parent.is_dir():
+        why = "is not a directory" if os.path.lexists(parent) else "does not exist"
+        raise InputError(f"{what} {path}: the parent directory {parent} {why}")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{what} {path}: the parent directory {parent} is not writable")
+    return path
 
 
 def camera_frame(name: str) -> str:
@@ -190,7 +213,7 @@ class BagWriter:
 
     ``with BagWriter(out / "run", rig) as bag: bag.write_tick(t_s, body_to_world, images=..., ...)``.
 
-    path: the bag directory to create (must not exist). rig: gives the static transforms, the
+    path: the bag directory to create (see :func:`check_bag_destination`; InputError otherwise). rig: gives the static transforms, the
     frame of each sensor and the CameraInfo of each camera; without one, pass ``static_transforms``
     (``{frame_id: frame_to_body (4, 4)}``) and ``infos`` yourself. storage: ``sqlite3`` | ``mcap``.
     """
@@ -207,9 +230,7 @@ class BagWriter:
         storage: str = "sqlite3",
         time_offset_ns: int = 0,
     ) -> None:
-        self.path = Path(path)
-        if self.path.exists():
-            raise FileExistsError(f"{self.path}: exists already; a bag is never overwritten")
+        self.path = check_bag_destination(path)
         if storage not in ("sqlite3", "mcap"):
             raise ValueError(f"storage: expected sqlite3 or mcap, got {storage!r}")
         self.rig = rig
@@ -223,7 +244,7 @@ class BagWriter:
         statics.update({k: np.asarray(v, dtype=np.float64) for k, v in (static_transforms or {}).items()})
         self.static_transforms = statics
         self._tmp_dir = self.path.parent / f".{self.path.name}.{uuid.uuid4().hex[:12]}.tmp"
-        self._tmp_dir.mkdir(parents=True)
+        self._tmp_dir.mkdir()
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
         self._writer = Writer(self._tmp_dir / self.path.name, version=8, storage_plugin=plugin)
         self._writer.open()

@@ -231,6 +231,61 @@ def read_transforms(path: str | os.PathLike) -> TransformsData:
     return TransformsData(frames=frames, applied_transform=applied, extra=extra)
 
 
+# ---------------------------------------------------------------------------- the files frames name
+
+PATH_KEYS = ("file_path", "depth_file_path", "mask_path")
+
+
+def frame_image_paths(path: str | os.PathLike, data: TransformsData,
+                      root: str | os.PathLike | None = None) -> list[Path]:
+    """Each frame's image (``file_path``), resolved against the folder of ``path``, in frame order.
+
+    A transforms.json is untrusted: every path it names (``depth_file_path`` and ``mask_path``
+    too, which need not exist) must resolve, symlinks followed, inside ``root`` (default: the
+    folder of ``path``). Raises InputError naming the frame, e.g. ``t.json: frames[3].file_path:
+    ../../etc/hostname resolves outside /data/scan``, or ``... does not exist``.
+    """
+    path = Path(path)
+    base = path.parent
+    root = Path(root if root is not None else base).resolve()
+    images = []
+    for i, frame in enumerate(data.frames):
+        for key in PATH_KEYS:
+            if (value := getattr(frame, key)) is None:
+                continue
+            where = f"{path}: frames[{i}].{key}: {value}"
+            try:
+                resolved = (base / value).resolve()
+            except (OSError, RuntimeError, ValueError) as e:  # symlink loop, NUL byte
+                raise InputError(f"{where}: not a usable path ({e})") from None
+            if not resolved.is_relative_to(root):
+                raise InputError(f"{where} resolves outside {root}")
+            if key == "file_path":
+                if not resolved.is_file():
+                    raise InputError(f"{where} does not exist")
+                images.append(resolved)
+    return images
+
+
+def check_frame_images(path: str | os.PathLike, data: TransformsData, images: list[Path]) -> None:
+    """Decode every frame's image (``frame_image_paths``) and check its size against the frame's ``w``, ``h``.
+
+    Raises InputError naming the frame and file: a truncated or unreadable image, or
+    ``t.json: frames[2].file_path: b.png: image is 64x48, but w=80, h=60``.
+    """
+    from nsim.io.images import read_image
+
+    for i, (frame, image) in enumerate(zip(data.frames, images, strict=True)):
+        where = f"{path}: frames[{i}].file_path: {frame.file_path}"
+        try:
+            height, width = read_image(image).shape[:2]
+        except InputError as e:
+            raise InputError(f"{where}: {str(e).removeprefix(f'{image}: ')}") from None
+        cam = frame.camera
+        if (width, height) != (cam.width, cam.height):
+            raise InputError(f"{where}: image is {width}x{height}, but w={cam.width}, h={cam.height}")
+
+
 # ---------------------------------------------------------------------------- writing
 
 

@@ -455,7 +455,9 @@ class Evaluator:
         traj = r.manifest["inputs"].get("trajectory")
         if traj is None:
             raise InputError(f"render {r.short}: has human checkpoints but no trajectory")
-        arrays = dict(np.load(self.store.get(traj).file("trajectory.npz"), allow_pickle=False))
+        from nsim.io.npz import read_npz
+
+        arrays = read_npz(self.store.get(traj).file("trajectory.npz"))
         people = HumanSet([], arrays, "cpu")
         seeds = self.actor_seeds(r)
         bodies: dict[int, Any] = {}

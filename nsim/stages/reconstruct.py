@@ -3,7 +3,9 @@
 Inputs are files (a video, an image folder, optional reference/intrinsics files) or a capture
 artifact. Files are not artifacts: their content digests enter the action key, so editing a
 file never serves a stale result. ``--import transforms.json`` skips SfM and brings poses
-from nerfstudio / PolyCam / Record3D exports (OpenGL convention) into the workspace.
+from nerfstudio / PolyCam / Record3D exports (OpenGL convention) into the workspace; the
+images it names must lie inside its folder (or ``images_root``), decode, and match its ``w``,
+``h``, and their bytes enter the action key.
 
 Artifact layout (kind ``poses``)::
 
@@ -25,11 +27,10 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import shutil
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from nsim.config import from_dict, param
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.progress import progress_bar
+
+if TYPE_CHECKING:
+    from nsim.io.transforms_json import TransformsData
 
 STAGE = "reconstruct"
 VERSION = 2
@@ -65,8 +69,9 @@ class Inputs:
     """What to reconstruct and how to scale it.
 
     source: a video file, an image folder, or (``capture``) a capture artifact id whose video
-    is used; reference: transforms.json or TUM file with metric poses; intrinsics: a
-    transforms.json / YAML / JSON camera file; known_distance: (x1, y1, z1, x2, y2, z2, d_m) in
+    is used; import_transforms: an exported transforms.json, whose images (paths relative to
+    its folder) must lie inside images_root (default: its folder); reference: transforms.json
+    or TUM file with metric poses; intrinsics: a transforms.json / YAML / JSON camera file; known_distance: (x1, y1, z1, x2, y2, z2, d_m) in
     the frame of an unscaled run; camera_height_m: the capture's mean camera height.
     """
 
@@ -77,6 +82,7 @@ class Inputs:
     known_distance: tuple[float, ...] | None = None
     camera_height_m: float | None = None
     import_transforms: Path | None = None
+    images_root: Path | None = None
 
     def ids(self) -> dict[str, str]:
         return {"capture": self.capture} if self.capture else {}
@@ -88,10 +94,15 @@ class Inputs:
         scales = [x is not None for x in (self.reference, self.known_distance, self.camera_height_m)]
         if sum(scales) > 1:
             raise InputError("reconstruct: give at most one of --reference, --known-distance, --camera-height")
-        for name in ("source", "reference", "intrinsics", "import_transforms"):
+        for name in ("source", "reference", "intrinsics", "import_transforms", "images_root"):
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
                 raise InputError(f"{p}: no such file or directory")
+        if self.images_root is not None:
+            if self.import_transforms is None:
+                raise InputError("--images-root: only with --import")
+            if not Path(self.images_root).is_dir():
+                raise InputError(f"--images-root: {self.images_root} is not a directory")
         if self.known_distance is not None:
             kd = self.known_distance
             if len(kd) != 7 or not np.all(np.isfinite(kd)) or kd[6] <= 0:
@@ -128,16 +139,21 @@ def _file_digest(path: Path) -> str:
     return sha256_file(path)[0]
 
 
-def file_digests(inputs: Inputs) -> dict[str, str]:
-    return {
+def file_digests(inputs: Inputs, image_digests: list[str] | None = None) -> dict[str, str]:
+    """Content digests of the file inputs; an import's images (per-file SHA-256, in frame order) as one."""
+    files = {
         name: _digest_path(Path(p))
         for name in ("source", "reference", "intrinsics", "import_transforms")
         if (p := getattr(inputs, name)) is not None
     }
+    if image_digests is not None:
+        files["import_images"] = hashlib.sha256("\n".join(image_digests).encode()).hexdigest()
+    return files
 
 
-def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str) -> str:
-    files = file_digests(inputs)
+def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str,
+               files: dict[str, str] | None = None) -> str:
+    files = file_digests(inputs) if files is None else files
     extra = {
         "files": files,
         "known_distance": list(inputs.known_distance) if inputs.known_distance else None,
@@ -155,18 +171,25 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     if inputs.capture is not None:
         ctx.store.resolve(inputs.capture, kind="capture")
     device = "cpu" if inputs.import_transforms is not None else ("cuda" if ctx.device.startswith("cuda") else "cpu")
-    key = action_key(inputs, cfg, ctx, device)
+    imported = _read_import(inputs) if inputs.import_transforms is not None else None
+    files = file_digests(inputs, None if imported is None else [digest for _, digest in imported[2]])
+    key = action_key(inputs, cfg, ctx, device, files)
     if not ctx.force and (hit := ctx.store.lookup(key)) is not None:
         return Outputs(poses=hit.id, cache_hit=True)
+    if imported is not None:
+        from nsim.io.transforms_json import check_frame_images
+
+        path, data, images = imported
+        check_frame_images(path, data, [image for image, _ in images])  # before anything is published
     with ctx.store.publish(
         kind="poses", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(), seed=ctx.seed
     ) as out:
-        if inputs.import_transforms is not None:
-            summary = import_transforms(inputs.import_transforms, out.dir)
+        if imported is not None:
+            summary = import_transforms(*imported, out.dir)
         else:
             summary = reconstruct(inputs, cfg, ctx, device, out.dir, out.timing)
         out.summary.update(summary)
-        out.summary["file_inputs"] = file_digests(inputs)
+        out.summary["file_inputs"] = files
         out.summary["scale_inputs"] = {
             "known_distance": list(inputs.known_distance) if inputs.known_distance else None,
             "camera_height_m": inputs.camera_height_m,
@@ -296,22 +319,34 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
     }
 
 
-def import_transforms(path: Path, out_dir: Path) -> dict[str, Any]:
-    """Bring an exported transforms.json (nerfstudio / PolyCam / Record3D) and its images in."""
-    from nsim.io.transforms_json import Frame, TransformsData, read_transforms, write_transforms
+def _read_import(inputs: Inputs) -> tuple[Path, TransformsData, list[tuple[Path, str]]]:
+    """The transforms.json to import, parsed, and its images (confined, resolved) with their SHA-256."""
+    from nsim.io.transforms_json import frame_image_paths, read_transforms
 
+    path = Path(inputs.import_transforms)
     data = read_transforms(path)
     if not data.frames:
         raise InputError(f"{path}: has no frames")
-    base = path.parent
+    images = frame_image_paths(path, data, inputs.images_root)
+    return path, data, [(image, _file_digest(image)) for image in images]
+
+
+def import_transforms(path: Path, data: TransformsData, images: list[tuple[Path, str]],
+                      out_dir: Path) -> dict[str, Any]:
+    """Bring an exported transforms.json (nerfstudio / PolyCam / Record3D) and its images in.
+
+    data: ``path`` as read; images: each frame's image and the SHA-256 it was checked with (``_read_import``).
+    """
+    from nsim.io.transforms_json import Frame, TransformsData, write_transforms
+
     (out_dir / "images").mkdir()
     frames = []
-    for i, f in enumerate(data.frames):
-        src = (base / f.file_path).resolve()
-        if not src.is_file():
-            raise InputError(f"{path}: frames[{i}].file_path: {f.file_path} does not exist")
+    for i, (f, (src, digest)) in enumerate(zip(data.frames, images, strict=True)):
         name = f"frame_{i:05d}{src.suffix.lower()}"
-        shutil.copyfile(src, out_dir / "images" / name)
+        content = src.read_bytes()
+        if hashlib.sha256(content).hexdigest() != digest:
+            raise InputError(f"{path}: frames[{i}].file_path: {src} changed during the import")
+        (out_dir / "images" / name).write_bytes(content)
         frames.append(Frame(file_path=f"images/{name}", cam_to_world=f.cam_to_world, camera=f.camera,
                             timestamp_s=f.timestamp_s))
     write_transforms(out_dir / "transforms.json", TransformsData(frames=frames, extra={"nsim_scale": "import"}))

@@ -213,7 +213,9 @@ def plan_frames(inputs: Inputs, cfg: Config, ctx: RunContext) -> list[dict[str, 
     """The frames to render: ``{index, time_s, body_to_world | cam_to_world (+ camera), name}``."""
     store = ctx.store
     if inputs.trajectory is not None:
-        arrays = np.load(store.get(inputs.trajectory).file("trajectory.npz"))
+        from nsim.io.npz import read_npz
+
+        arrays = read_npz(store.get(inputs.trajectory).file("trajectory.npz"), required=("robot_pose_se3", "time_s"))
         poses = arrays["robot_pose_se3"]
         times = arrays["time_s"]
         if not np.isfinite(poses).all():
@@ -506,7 +508,9 @@ class HumanSet:
 
         if trajectory_file is None:
             raise InputError("render: human checkpoints need a trajectory (people come from nsim simulate)")
-        arrays = dict(np.load(trajectory_file, allow_pickle=False))
+        from nsim.io.npz import read_npz
+
+        arrays = read_npz(Path(trajectory_file))
         return cls([load_human_model(d, device=device).eval() for d in human_dirs], arrays, device)
 
     def _loop(self, motion: str, height: float):

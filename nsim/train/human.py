@@ -61,11 +61,12 @@ from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.skeleton import Skeleton, pose_aabb
 from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
+from nsim.train import checkpoint
+from nsim.train.checkpoint import CHECKPOINT_NAME
 
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = 1
-CHECKPOINT_NAME = "last.pt"
 
 
 # ====================================================================== configuration
@@ -444,18 +445,13 @@ class HumanTrainer:
         self.history = list(state["history"])
 
     def save_checkpoint(self, path: Path) -> None:
-        """Atomically write the full training state to ``path``."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as f:
-            torch.save(self.state_dict(), f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
+        checkpoint.save_checkpoint(self.state_dict(), path)
 
     def load_checkpoint(self, path: Path) -> None:
-        self.load_state_dict(torch.load(path, map_location=self.device, weights_only=False))
+        """Continue from the checkpoint at ``path``; read weights-only, so no code in it runs.
+        Raises ``InputError`` if it is unreadable or another run's."""
+        self.load_state_dict(checkpoint.load_checkpoint(path, map_location=self.device))
 
     # ------------------------------------------------------------------ evaluation
     @torch.no_grad()
@@ -581,17 +577,8 @@ def train_human(
 
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
-    trainer = HumanTrainer(data, cfg, device, seed, background_model)
     ckpt = work_dir / CHECKPOINT_NAME
-    resumed = None
-    if ckpt.is_file():
-        try:
-            trainer.load_checkpoint(ckpt)
-            resumed = trainer.step
-            log.info("resuming from %s at step %d", ckpt, trainer.step)
-        except (InputError, RuntimeError, KeyError) as exc:
-            log.warning("ignoring checkpoint %s: %s", ckpt, exc)
-            trainer = HumanTrainer(data, cfg, device, seed, background_model)
+    trainer, resumed = checkpoint.resume(lambda: HumanTrainer(data, cfg, device, seed, background_model), ckpt)
     out = cfg.output
     end = cfg.optim.steps if stop_after is None else min(cfg.optim.steps, stop_after)
     with progress_bar(cfg.optim.steps, "training human", progress) as bar:

@@ -49,6 +49,8 @@ from nsim.fields.scene_field import SceneFieldConfig
 from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
+from nsim.train import checkpoint
+from nsim.train.checkpoint import CHECKPOINT_NAME
 
 log = logging.getLogger(__name__)
 
@@ -622,18 +624,13 @@ class SceneTrainer:
         torch.set_rng_state(state["torch_rng"])
 
     def save_checkpoint(self, path: Path) -> None:
-        """Atomically write the full training state to ``path``."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as f:
-            torch.save(self.state_dict(), f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
+        checkpoint.save_checkpoint(self.state_dict(), path)
 
     def load_checkpoint(self, path: Path) -> None:
-        self.load_state_dict(torch.load(path, map_location=self.device, weights_only=False))
+        """Continue from the checkpoint at ``path``; read weights-only, so no code in it runs.
+        Raises ``InputError`` if it is unreadable or another run's."""
+        self.load_state_dict(checkpoint.load_checkpoint(path, map_location=self.device))
 
     # ------------------------------------------------------------------ rendering and evaluation
     @torch.no_grad()
@@ -724,7 +721,6 @@ class TrainResult:
         return self.trainer.model
 
 
-CHECKPOINT_NAME = "last.pt"
 
 
 def train_scene(
@@ -749,17 +745,8 @@ def train_scene(
 
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
-    trainer = SceneTrainer(data, cfg, device, seed)
     ckpt = work_dir / CHECKPOINT_NAME
-    resumed = None
-    if ckpt.is_file():
-        try:
-            trainer.load_checkpoint(ckpt)
-            resumed = trainer.step
-            log.info("resuming from %s at step %d", ckpt, trainer.step)
-        except (InputError, RuntimeError, KeyError) as exc:
-            log.warning("ignoring checkpoint %s: %s", ckpt, exc)
-            trainer = SceneTrainer(data, cfg, device, seed)
+    trainer, resumed = checkpoint.resume(lambda: SceneTrainer(data, cfg, device, seed), ckpt)
     out = cfg.output
     end = cfg.optim.steps if stop_after is None else min(cfg.optim.steps, stop_after)
     with progress_bar(cfg.optim.steps, "training scene", progress) as bar:

@@ -9,8 +9,16 @@ import pytest
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import Reader
 
+from nsim.errors import InputError
 from nsim.geometry import Camera, make_se3
-from nsim.io.rosbag import TYPESTORE, BagWriter, matrix_from_transform, read_image, read_pointcloud
+from nsim.io.rosbag import (
+    TYPESTORE,
+    BagWriter,
+    check_bag_destination,
+    matrix_from_transform,
+    read_image,
+    read_pointcloud,
+)
 from nsim.sensors import Rig
 
 
@@ -162,9 +170,35 @@ def test_no_bag_is_left_by_a_failure(tmp_path, rig):
         raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
     (tmp_path / "run").mkdir()
-    with pytest.raises(FileExistsError):
+    with pytest.raises(InputError, match="exists already"):
         BagWriter(tmp_path / "run", rig)
     with BagWriter(tmp_path / "other", rig) as bag:
         bag.write_tick(0.1, np.eye(4))
         with pytest.raises(ValueError, match="increasing"):
             bag.write_tick(0.1, np.eye(4))
+
+
+def test_bag_destination(tmp_path):
+    assert check_bag_destination(tmp_path / "new") == tmp_path / "new"
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    for name in ("empty", "file", "dangling"):  # never overwritten, not even an empty directory
+        with pytest.raises(InputError, match=rf"^--rosbag {tmp_path / name}: exists already"):
+            check_bag_destination(tmp_path / name, "--rosbag")
+    with pytest.raises(InputError, match=r"parent directory .*missing does not exist$"):
+        check_bag_destination(tmp_path / "missing" / "bag")
+    with pytest.raises(InputError, match=r"parent directory .*file is not a directory$"):
+        check_bag_destination(tmp_path / "file" / "bag")
+    assert list(tmp_path.iterdir()) and not (tmp_path / "missing").exists()  # nothing created
+
+
+@pytest.mark.skipif(__import__("os").geteuid() == 0, reason="root writes anywhere")
+def test_bag_destination_unwritable_parent(tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    try:
+        with pytest.raises(InputError, match="is not writable$"):
+            check_bag_destination(locked / "bag")
+    finally:
+        locked.chmod(0o700)

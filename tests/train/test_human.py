@@ -4,6 +4,7 @@ ray-cast actor walking in front of a flat background, export, and compositing ov
 from __future__ import annotations
 
 import json
+import logging
 import time
 
 import numpy as np
@@ -139,6 +140,19 @@ def test_resume_is_bit_identical(capture, tmp_path):
     # a checkpoint of another run (other seed) is ignored, not resumed
     other = train_human(capture, cfg, tmp_path / "part", seed=6, stop_after=1)
     assert other.resumed_from is None
+
+
+def test_planted_resume_checkpoint_runs_no_code(capture, tmp_path, plant_checkpoint, caplog):
+    """A code-running pickle at work_dir/last.pt is refused with a warning; training runs from scratch."""
+    cfg = micro_cfg(optim={"steps": 3})
+    marker = tmp_path / "pwned"
+    ckpt = plant_checkpoint(tmp_path / "work" / "last.pt", "torch_save_exec", marker)
+    with caplog.at_level(logging.WARNING):
+        result = train_human(capture, cfg, tmp_path / "work", seed=0)
+    assert not marker.exists()
+    assert any(r.levelno == logging.WARNING and str(ckpt) in r.getMessage() for r in caplog.records)
+    assert result.resumed_from is None and result.trainer.step == 3
+    assert train_human(capture, cfg, tmp_path / "work", seed=0).resumed_from == 3  # its own checkpoint replaced it
 
 
 def test_trains_over_a_scene_model(capture, tmp_path):

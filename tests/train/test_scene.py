@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 
 import numpy as np
@@ -119,6 +120,21 @@ def test_checkpoint_of_another_run_is_not_resumed(tiny_data, tmp_path):
     assert other.resumed_from is None
     with pytest.raises(InputError):
         SceneTrainer(tiny_data, micro_cfg(optim={"steps": 3}), seed=2).load_checkpoint(tmp_path / "last.pt")
+
+
+@pytest.mark.parametrize("kind", ["torch_save_exec", "pickle_exec", "truncated"])
+def test_planted_resume_checkpoint_runs_no_code(tiny_data, tmp_path, plant_checkpoint, caplog, kind):
+    """A code-running pickle (or a broken file) at work_dir/last.pt is refused with a warning, and the
+    run trains from scratch and replaces it with a real checkpoint."""
+    cfg = micro_cfg(optim={"steps": 3})
+    marker = tmp_path / "pwned"
+    ckpt = plant_checkpoint(tmp_path / "work" / "last.pt", kind, marker)
+    with caplog.at_level(logging.WARNING):
+        result = train_scene(tiny_data, cfg, tmp_path / "work", seed=0)
+    assert not marker.exists()
+    assert any(r.levelno == logging.WARNING and str(ckpt) in r.getMessage() for r in caplog.records)
+    assert result.resumed_from is None and result.trainer.step == 3
+    SceneTrainer(tiny_data, cfg, seed=0).load_checkpoint(ckpt)  # replaced by this run's own checkpoint
 
 
 def test_pose_refinement_and_depth_supervision_train(tiny_data, tiny_capture_dir, tmp_path):

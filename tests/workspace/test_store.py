@@ -121,10 +121,13 @@ def test_gc_keeps_reachable_and_inputs(store):
     child, _ = toy_publish(store, ToyConfig(payload="child"), inputs={"capture": base.id}, ref="keep/child")
     orphan, _ = toy_publish(store, ToyConfig(payload="orphan"))
     store.delete_ref("capture/latest")
-    dry = store.gc(dry_run=True)
+    assert store.gc(dry_run=True).objects == []  # younger than the grace period, and held by this process
+    store.release()
+    assert store.gc(dry_run=True).objects == []  # still younger than the grace period
+    dry = store.gc(dry_run=True, grace_s=0)
     assert dry.objects == [orphan.id]
     assert orphan.id in store.all_ids()
-    report = store.gc()
+    report = store.gc(grace_s=0)
     assert report.objects == [orphan.id]
     assert sorted(store.all_ids()) == sorted([base.id, child.id])
     assert store.lookup(store.action_key("toy", 1, ToyConfig(payload="orphan"), {}, seed=0)) is None
