@@ -1,4 +1,4 @@
-"""The main job end to end on the built-in test room; ends by printing ``nsim ls``.
+"""The main job end to end on the built-in test room; ends with ``nsim verify``, ``nsim gc --dry-run``, ``nsim ls``.
 
     python pipelines/demo.py [--workspace DIR] [--preset default|tiny] [--seed N]
 
@@ -118,7 +118,14 @@ def main() -> int:
     except NsimError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return nsim_main(["--workspace", str(args.workspace), "ls"])
+    # The workspace's own checks: every artifact re-hashed against its manifest, and what gc would
+    # keep or remove (the grace period keeps a fresh demo whole).
+    for cmd in (["verify"], ["gc", "--dry-run"], ["ls"]):
+        print(f"[demo] nsim {' '.join(cmd)}", flush=True)
+        code = nsim_main(["--workspace", str(args.workspace), *cmd])
+        if code:
+            return code
+    return 0
 
 
 if __name__ == "__main__":

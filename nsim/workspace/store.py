@@ -554,6 +554,8 @@ class Store:
         obj = self.object_path(art_id)
         if self.checked:
             self.hold([art_id])
+        if obj.is_symlink():
+            raise WorkspaceError(f"artifact {art_id[:12]}: {obj} is a symbolic link, which the workspace never writes")
         if not (obj / MANIFEST).is_file():
             raise WorkspaceError(f"artifact {art_id[:12]} is not in the workspace {self.root}")
         if self.checked:

@@ -149,10 +149,21 @@ def test_a_stage_refuses_a_tampered_input_and_publishes_nothing(store, run_cli):
     assert list((store.root / "tmp").iterdir()) == []
 
 
-def test_check_on_read_uses_the_marker_and_sees_a_rewrite(store):
+def test_check_on_read_uses_the_marker_and_sees_a_rewrite(store, monkeypatch):
+    import nsim.workspace.store as st
+
     art, _ = toy_publish(store, ToyConfig(repeat=4))
-    reader = Store(store.root)
-    reader.get(art.id)  # the publish left a marker: no re-hash needed, and none fails
+    hashed = []
+    real_sha = st.sha256_file
+    monkeypatch.setattr(st, "sha256_file", lambda p: hashed.append(p) or real_sha(p))
+    Store(store.root).get(art.id)  # the publish left a marker: no re-hash needed
+    assert hashed == []
+    marker = store.root / "verified" / art.id[:2] / art.id
+    marker.unlink()
+    Store(store.root).get(art.id)  # no marker: one full check, which writes it again
+    assert len(hashed) == 2 and marker.is_file()
+    Store(store.root).get(art.id)
+    assert len(hashed) == 2
     p = art.path / "sub" / "b.bin"
     os.chmod(art.path / "sub", 0o755)
     os.chmod(p, 0o644)
@@ -395,6 +406,40 @@ def test_read_only_commands_create_no_workspace(tmp_path, run_cli):
         _one_line_error(code, err)
         assert "no nsim workspace here" in err
         assert not ws.exists()
+
+
+def test_symlinked_object_directory_is_refused(store, tmp_path):
+    art, _ = toy_publish(store, ToyConfig(), ref="capture/l")
+    elsewhere = tmp_path / "elsewhere"
+    os.chmod(art.path.parent, 0o755)
+    os.rename(art.path, elsewhere)
+    art.path.symlink_to(elsewhere)
+    with pytest.raises(WorkspaceError, match="symbolic link"):
+        Store(store.root).get(art.id)
+    assert [p.file for p in store.verify(art.id)] == ["(object)"]
+    assert art.id not in store.all_ids()
+
+
+def test_truncated_npz_is_one_line(tmp_path):
+    import numpy as np
+
+    from nsim.io.npz import read_npz
+
+    p = tmp_path / "trajectory.npz"
+    np.savez(p, time_s=np.arange(10.0))
+    assert read_npz(p, required=("time_s",))["time_s"].shape == (10,)
+    with pytest.raises(InputError, match="missing array"):
+        read_npz(p, required=("robot_pose_se3",))
+    p.write_bytes(p.read_bytes()[:40])
+    with pytest.raises(InputError, match="not a readable .npz"):
+        read_npz(p)
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "obj.npz", "w") as z:
+        z.write(tmp_path / "obj.npy", "x.npy")
+    with pytest.raises(InputError, match="not a readable"):
+        read_npz(tmp_path / "obj.npz")
 
 
 def test_ref_name_rules(store):
