@@ -9,6 +9,7 @@ Layout of a workspace root::
     leases/<host>.<pid>.<tag>.json   ids a running process reads or publishes (gc keeps them)
     verified/ab/abcdef...        what a stage last checked of an object: file stats, manifest digest
     trash/<id>.<tag>             objects being removed (renamed here first, then deleted)
+    gc.lock, hold.lock           one gc at a time; holds exclude gc's choosing of victims
     tmp/                         artifacts being written; debris after a crash (gc removes it)
 
 An artifact's **id** is the SHA-256 of its manifest without the ``id`` and ``timing`` fields;
@@ -25,11 +26,13 @@ What holds under concurrent processes, kills and hostile files:
 
 * **gc never collects live work.** Roots are the refs, the ids in live leases, and every object
   younger than the grace period (``nsim gc --grace``, 1 hour by default); their inputs are kept
-  too. A process holds an id (writes it into its lease) *before* it checks that the object
-  exists, and gc lists objects *before* it reads refs and leases, moves its victims into
-  ``trash/`` with one rename each, then reads refs and leases again and moves back any victim
-  that became reachable meanwhile. Either gc sees the hold, or the holder sees the object gone
-  (a cache miss). Removal is atomic: an object is whole in ``objects/`` or not there at all.
+  too. A process holds an id (writes it into its lease) and then looks at the object while it
+  has ``hold.lock`` shared; gc chooses its victims and moves them into ``trash/`` (one rename
+  each) while it has that lock exclusive. So either gc sees the hold, or the holder sees the
+  object gone (a cache miss) — never an object that vanishes after it was found whole. Removal
+  is atomic: an object is whole in ``objects/`` or not there at all. Before deleting the trash,
+  gc reads refs and leases once more and moves back anything they reach (refs written by hand,
+  or the trash of a gc killed midway).
 * **Nothing read from a workspace is trusted.** Ref contents and cache records must be 64 hex
   digits; every object path stays inside ``objects/``; manifest file names are relative and
   normalised; an input a stage reads is checked against its manifest first (``Store.get``, with
@@ -382,6 +385,7 @@ class _Lease:
         self.ids: set[str] = set()
         self.path: Path | None = None
         self._stop = threading.Event()
+        self._atexit = False
 
     def hold(self, ids: Iterable[str]) -> None:
         with self._lock:
@@ -393,7 +397,9 @@ class _Lease:
             self.ids |= new
             if self.path is None:
                 self.path = self.dir / f"{_HOST}.{self.pid}.{uuid.uuid4().hex[:12]}.json"
-                atexit.register(self.release)
+                if not self._atexit:
+                    atexit.register(self.release)
+                    self._atexit = True
                 threading.Thread(target=self._heartbeat, name="nsim-lease", daemon=True).start()
             body = {"host": _HOST, "pid": self.pid, "pid_start": _proc_start(self.pid), "ids": sorted(self.ids)}
             _write_atomic(self.path, json.dumps(body).encode() + b"\n")
@@ -407,6 +413,7 @@ class _Lease:
     def release(self) -> None:
         if self.path is not None and self.pid == os.getpid():
             self._stop.set()
+            self._stop = threading.Event()  # for the heartbeat of the next lease
             with contextlib.suppress(OSError):
                 self.path.unlink()
             self.path = None
@@ -439,7 +446,7 @@ class Store:
                 raise WorkspaceError(f"{marker}: workspace format {fmt} is not supported (expected {FORMAT})")
         elif create:
             if self.root.is_dir() and any(p.name != MARKER for p in self.root.iterdir()):
-                known = {*SUBDIRS, "gc.lock"}
+                known = {*SUBDIRS, "gc.lock", "hold.lock"}
                 if not {p.name for p in self.root.iterdir()} <= known:
                     raise WorkspaceError(
                         f"{self.root}: directory exists, is not empty and is not an nsim workspace"
@@ -511,8 +518,9 @@ class Store:
         art_id = self._read_action(self._action_path(key))
         if art_id is None:
             return None
-        self.hold([art_id])
-        m = self._complete_manifest(art_id)
+        with self._holding():
+            self.hold([art_id])
+            m = self._complete_manifest(art_id)
         if m is None:
             return None
         if m["kind"] in KINDS:
@@ -542,8 +550,48 @@ class Store:
         return m
 
     def hold(self, ids: Iterable[str]) -> None:
-        """Add ids to this process's lease: gc keeps them (and their inputs) while the process runs."""
+        """Add ids to this process's lease: gc keeps them (and their inputs) while the process runs.
+
+        To rely on an object found after the hold, hold and look inside :meth:`_holding`.
+        """
         self._lease.hold(ids)
+
+    def _lock_fd(self) -> int | None:
+        try:
+            return os.open(self.root / "hold.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError:
+            try:
+                return os.open(self.root / "hold.lock", os.O_RDONLY)
+            except OSError:
+                return None  # a read-only workspace without the lock file: nobody can gc it either
+
+    @contextlib.contextmanager
+    def _holding(self) -> Iterator[None]:
+        """``hold.lock`` shared: holds taken and objects looked at inside cannot interleave with gc's
+        choosing and trashing of victims (which it does with the lock exclusive)."""
+        import fcntl
+
+        fd = self._lock_fd()
+        try:
+            if fd is not None:
+                fcntl.flock(fd, fcntl.LOCK_SH)
+            yield
+        finally:
+            if fd is not None:
+                os.close(fd)
+
+    @contextlib.contextmanager
+    def _collecting(self) -> Iterator[None]:
+        import fcntl
+
+        fd = self._lock_fd()
+        if fd is None:
+            raise WorkspaceError(f"{self.root}: cannot open hold.lock; gc needs a writable workspace")
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(fd)
 
     def release(self) -> None:
         """Drop this process's lease (it also goes when the process exits)."""
@@ -552,12 +600,13 @@ class Store:
     def get(self, art_id: str) -> Artifact:
         """The artifact with this id; a checked store also holds it and verifies it (see :meth:`check`)."""
         obj = self.object_path(art_id)
-        if self.checked:
-            self.hold([art_id])
-        if obj.is_symlink():
-            raise WorkspaceError(f"artifact {art_id[:12]}: {obj} is a symbolic link, which the workspace never writes")
-        if not (obj / MANIFEST).is_file():
-            raise WorkspaceError(f"artifact {art_id[:12]} is not in the workspace {self.root}")
+        with self._holding() if self.checked else contextlib.nullcontext():
+            if self.checked:
+                self.hold([art_id])
+            if obj.is_symlink():
+                raise WorkspaceError(f"artifact {art_id[:12]}: {obj} is a symbolic link, which the workspace never writes")
+            if not (obj / MANIFEST).is_file():
+                raise WorkspaceError(f"artifact {art_id[:12]} is not in the workspace {self.root}")
         if self.checked:
             self.check(art_id)
         return Artifact(art_id, obj)
@@ -698,14 +747,18 @@ class Store:
         dest = self.object_path(art_id)
         for _attempt in range(8):
             dest.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                os.rename(tmp, dest)
-            except OSError as exc:
-                if exc.errno == errno.ENOENT:
-                    continue
-                if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.EISDIR, errno.ENOTDIR):
-                    raise
-            else:
+            with self._holding():  # a copy found in place is held before gc can choose it
+                self.hold([art_id])
+                try:
+                    os.rename(tmp, dest)
+                    placed = True
+                except OSError as exc:
+                    if exc.errno not in (errno.ENOENT, errno.ENOTEMPTY, errno.EEXIST, errno.EISDIR, errno.ENOTDIR):
+                        raise
+                    placed = False
+                    if exc.errno == errno.ENOENT:
+                        continue
+            if placed:
                 os.chmod(dest, 0o555)
                 _fsync_dir(dest.parent)
                 return True
@@ -788,10 +841,11 @@ class Store:
         self.check_ref_destination(name)
         if not is_id(art_id):
             raise WorkspaceError(f"cannot point ref {name} at {str(art_id)[:80]!r}: not an artifact id")
-        self.hold([art_id])
-        if self._complete_manifest(art_id) is None:
-            raise WorkspaceError(f"cannot point ref {name} at {art_id[:12]}: no such artifact")
-        _write_atomic(self.root / "refs" / name, art_id.encode() + b"\n")
+        with self._holding():
+            self.hold([art_id])
+            if self._complete_manifest(art_id) is None:
+                raise WorkspaceError(f"cannot point ref {name} at {art_id[:12]}: no such artifact")
+            _write_atomic(self.root / "refs" / name, art_id.encode() + b"\n")
 
     def delete_ref(self, name: str) -> None:
         check_ref_name(name)
@@ -870,8 +924,10 @@ class Store:
         ref_file = self.root / "refs" / spec
         if _REF_RE.match(spec) and ".." not in spec.split("/") and (ref_file.is_file() or ref_file.is_symlink()):
             art_id = self._read_ref_file(ref_file, spec)
-            self.hold([art_id])
-            if not (self.object_path(art_id) / MANIFEST).is_file():
+            with self._holding():
+                self.hold([art_id])
+                found = (self.object_path(art_id) / MANIFEST).is_file()
+            if not found:
                 raise WorkspaceError(f"ref {spec} points at {art_id[:12]}, which is not in the workspace")
         elif _HEX_RE.match(spec) and 4 <= len(spec) <= 64:
             shard = self.root / "objects" / spec[:2]
@@ -1047,8 +1103,9 @@ class Store:
 
         Kept: objects reachable (through inputs) from refs, from live leases, and from objects
         younger than ``grace_s`` (by the ctime of their directory, set when it was renamed into
-        place). Victims are renamed into ``trash/`` one by one, refs and leases are read again and
-        any victim that became reachable meanwhile is moved back; then the trash is deleted. A
+        place). Victims are chosen and renamed into ``trash/`` one by one under ``hold.lock``
+        exclusive; refs and leases are read again and anything they reach is moved back (a ref
+        written by hand meanwhile); then the trash is deleted. A
         gc killed at any step leaves every object whole in ``objects/`` or in ``trash/``, which
         the next gc finishes (restoring what is reachable then).
         """
@@ -1056,27 +1113,30 @@ class Store:
             raise InputError(f"--grace: expected seconds >= 0, got {grace_s}")
         report = GcReport()
         with self._gc_lock():
-            now = time.time()
-            objs = self._object_dirs()  # listed before refs and leases are read: see the module doc
-            young = set()
-            for i, p in objs.items():
-                try:
-                    if now - p.lstat().st_ctime < grace_s:
-                        young.add(i)
-                except FileNotFoundError:
-                    pass
-            held, expired = self.leases(remove_expired=not dry_run)
-            report.leases = expired
-            keep = self._closure({*self.refs().values(), *held, *young}, objs)
-            report.kept_young = len(young)
-            report.kept_leased = len(held & set(objs))
-            victims = [i for i in objs if i not in keep]
-            for i in victims:
-                report.bytes_freed += self.size_bytes(Artifact(i, objs[i]))
-            report.objects = list(victims)
-            if not dry_run:
+            # Choosing and trashing victims excludes every hold-and-look (see the module doc).
+            with self._collecting() if not dry_run else contextlib.nullcontext():
+                now = time.time()
+                objs = self._object_dirs()
+                young = set()
+                for i, p in objs.items():
+                    try:
+                        if now - p.lstat().st_ctime < grace_s:
+                            young.add(i)
+                    except FileNotFoundError:
+                        pass
+                held, expired = self.leases(remove_expired=not dry_run)
+                report.leases = expired
+                keep = self._closure({*self.refs().values(), *held, *young}, objs)
+                report.kept_young = len(young)
+                report.kept_leased = len(held & set(objs))
+                victims = [i for i in objs if i not in keep]
                 for i in victims:
-                    self._to_trash(objs[i], i)
+                    report.bytes_freed += self.size_bytes(Artifact(i, objs[i]))
+                report.objects = list(victims)
+                if not dry_run:
+                    for i in victims:
+                        self._to_trash(objs[i], i)
+            if not dry_run:
                 report.restored = self._empty_trash()
                 report.objects = [i for i in victims if i not in report.restored]
             self._gc_actions(report, dry_run)

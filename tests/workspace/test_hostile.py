@@ -299,7 +299,7 @@ def test_victim_referenced_during_gc_is_restored(store, monkeypatch):
     victim, _ = toy_publish(store, ToyConfig(payload="victim"))
     store.delete_ref("capture/latest")
     store.release()
-    other = Store(store.root)
+    other = Store(store.root, checked=False)
     real_to_trash = Store._to_trash
 
     def to_trash_then_tag(self, path, art_id, suffix="gc"):
@@ -312,6 +312,45 @@ def test_victim_referenced_during_gc_is_restored(store, monkeypatch):
     report = store.gc(grace_s=0)
     assert report.restored == [victim.id] and report.objects == []
     assert other.get(victim.id).id == victim.id and store.verify(victim.id) == []
+
+
+_LOOKUP = """
+import sys
+sys.path.insert(0, {repo!r})
+from nsim.workspace.store import Store
+from tests.workspace.toy import ToyConfig
+s = Store({ws!r})
+hit = s.lookup(s.action_key("toy", 1, ToyConfig(payload="old"), {{}}, seed=0))
+if hit is not None:
+    s.set_ref("capture/found", hit.id)
+    (hit.path / "a.txt").read_text()
+print("hit" if hit is not None else "miss")
+"""
+
+
+def test_a_lookup_during_gc_waits_and_never_sees_an_object_vanish(store, monkeypatch):
+    old, _ = toy_publish(store, ToyConfig(payload="old"))
+    store.delete_ref("capture/latest")
+    store.release()
+    real_to_trash = Store._to_trash
+    seen = {}
+
+    def to_trash_with_a_stage_looking(self, path, art_id, suffix="gc"):
+        # a stage's cache lookup arrives after gc chose its victims, before they move
+        proc = subprocess.Popen([sys.executable, "-c", _LOOKUP.format(repo=str(REPO), ws=str(self.root))],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO)
+        time.sleep(1.0)
+        seen["blocked"] = proc.poll() is None
+        seen["proc"] = proc
+        return real_to_trash(self, path, art_id, suffix)
+
+    monkeypatch.setattr(Store, "_to_trash", to_trash_with_a_stage_looking)
+    report = store.gc(grace_s=0)
+    out, err = seen["proc"].communicate(timeout=60)
+    assert seen["blocked"], "the lookup did not wait for gc"
+    assert seen["proc"].returncode == 0, err.decode()
+    assert out.decode().split() == ["miss"]
+    assert report.objects == [old.id] and old.id not in store.all_ids()
 
 
 _KILL_BETWEEN = """
