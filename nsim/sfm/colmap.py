@@ -109,6 +109,15 @@ FAR_PAIR_MIN_CHECKABLE = 10
 JUMP_MIN_ROTATION_DEG = 30.0
 JUMP_MIN_STEPS = 10.0
 
+#: Principal-point refinement ("auto"): only with one shared camera seen by at least this many
+#: registered images (fewer cannot separate it from rotation and focal length), ...
+PP_AUTO_MIN_IMAGES = 20
+#: ... only when refining lowers the mean reprojection error by at least this fraction, ...
+PP_AUTO_MIN_GAIN = 0.02
+#: ... and only when it lands within this fraction of max(width, height) of the image centre.
+PP_AUTO_MAX_SHIFT = 0.1
+PP_REFINE_CHOICES = ("auto", "on", "off")
+
 #: (phase, done, total) progress callback.
 ProgressFn = Callable[[str, int, int], None]
 
@@ -129,6 +138,11 @@ class SfmOptions:
         InputError. retry_below_fraction: map again with the next focal guess below this.
     refine_known_intrinsics: let bundle adjustment refine a ``known_camera``.
     hfov_guesses_deg: initial fields of view to try (None: ``DEFAULT_HFOV_GUESSES_DEG``).
+    focal_prior_hfov_deg: a field of view the images themselves state (EXIF 35 mm-equivalent focal
+        length, see ``nsim.sfm.frames.exif_hfov_deg``): tried first, as a focal-length prior.
+    refine_principal_point: "off" keeps it at the image centre; "on" lets the final bundle
+        adjustment refine it; "auto" refines it on a copy and keeps the result only when the data
+        supports it (see :data:`PP_AUTO_MIN_IMAGES`, :data:`PP_AUTO_MIN_GAIN`, :data:`PP_AUTO_MAX_SHIFT`).
     """
 
     camera_model: str = "SIMPLE_RADIAL"
@@ -145,6 +159,8 @@ class SfmOptions:
     retry_below_fraction: float = 0.95
     refine_known_intrinsics: bool = False
     hfov_guesses_deg: tuple[float, ...] | None = None
+    focal_prior_hfov_deg: float | None = None
+    refine_principal_point: str = "auto"
 
     def __post_init__(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -158,6 +174,11 @@ class SfmOptions:
         for name in ("min_registered_fraction", "retry_below_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name}: must be in [0, 1], got {getattr(self, name)}")
+        if self.refine_principal_point not in PP_REFINE_CHOICES:
+            raise ValueError(f"refine_principal_point: {self.refine_principal_point!r} is not one of "
+                             f"{', '.join(PP_REFINE_CHOICES)}")
+        if self.focal_prior_hfov_deg is not None and not 0.0 < self.focal_prior_hfov_deg < 180.0:
+            raise ValueError(f"focal_prior_hfov_deg: expected (0, 180), got {self.focal_prior_hfov_deg}")
         if self.hfov_guesses_deg is not None:
             limit = 360.0 if self.camera_model in FISHEYE_MODELS else 180.0
             if not self.hfov_guesses_deg or not all(0.0 < h < limit for h in self.hfov_guesses_deg):
@@ -165,7 +186,10 @@ class SfmOptions:
 
     @property
     def hfov_guesses(self) -> tuple[float, ...]:
-        return self.hfov_guesses_deg or DEFAULT_HFOV_GUESSES_DEG[self.camera_model]
+        guesses = self.hfov_guesses_deg or DEFAULT_HFOV_GUESSES_DEG[self.camera_model]
+        if self.focal_prior_hfov_deg is not None:
+            return (self.focal_prior_hfov_deg, *[g for g in guesses if g != self.focal_prior_hfov_deg])
+        return guesses
 
 
 @dataclass(frozen=True)
@@ -191,6 +215,7 @@ class SfmStats:
     phase_wall_s: dict[str, float]
     far_pairs_checked: int = 0
     far_pairs_dropped: int = 0
+    principal_point: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     @property
     def registered_fraction(self) -> float:
@@ -309,12 +334,14 @@ def initial_focal_px(model: str, width: int, height: int, hfov_deg: float) -> fl
     return size / half if model in FISHEYE_MODELS else size / math.tan(half)
 
 
-def _guess_camera(model: str, width: int, height: int, hfov_deg: float, camera_id: int) -> pycolmap.Camera:
+def _guess_camera(model: str, width: int, height: int, hfov_deg: float, camera_id: int,
+                  prior: bool = False) -> pycolmap.Camera:
     f = initial_focal_px(model, width, height, hfov_deg)
     cam = pycolmap.Camera.create_from_model_name(camera_id, model, f, width, height)
     # Fisheye pairs need a focal prior to be verified at all; perspective ones are verified
-    # with a fundamental matrix, and without a prior the mapper re-estimates the focal length.
-    cam.has_prior_focal_length = model in FISHEYE_MODELS
+    # with a fundamental matrix, and without a prior the mapper re-estimates the focal length
+    # (unless the images state it: ``prior``, from EXIF).
+    cam.has_prior_focal_length = prior or model in FISHEYE_MODELS
     return cam
 
 
@@ -595,14 +622,58 @@ def _reject_pose_jumps(rec: pycolmap.Reconstruction, names: list[str]) -> list[s
     return [im.name for im in rejected]
 
 
-def _global_bundle_adjustment(rec: pycolmap.Reconstruction, options: SfmOptions, refine_intrinsics: bool) -> None:
+def _bundle_adjust(rec: pycolmap.Reconstruction, options: SfmOptions, refine_intrinsics: bool,
+                   principal_point: bool) -> None:
     ba = pycolmap.BundleAdjustmentOptions()
     ba.refine_focal_length = refine_intrinsics
     ba.refine_extra_params = refine_intrinsics
-    ba.refine_principal_point = False
+    ba.refine_principal_point = principal_point
     ba.print_summary = False
     ba.ceres.solver_options.num_threads = 1 if options.deterministic else options.num_threads
     pycolmap.bundle_adjustment(rec, ba)
+
+
+def _principal_point_shift(rec: pycolmap.Reconstruction) -> float:
+    """The largest distance of a camera's principal point from its image centre, as a fraction of max(W, H)."""
+    shift = 0.0
+    for cam in rec.cameras.values():
+        d = math.hypot(cam.principal_point_x - cam.width / 2.0, cam.principal_point_y - cam.height / 2.0)
+        shift = max(shift, d / max(cam.width, cam.height))
+    return shift
+
+
+def _global_bundle_adjustment(rec: pycolmap.Reconstruction, options: SfmOptions,
+                              refine_intrinsics: bool) -> tuple[pycolmap.Reconstruction, dict[str, Any]]:
+    """The final bundle adjustment, then (``refine_principal_point``) the same with the principal point free.
+
+    Returns the reconstruction to keep and what was decided (for report.json). In "auto", the
+    refined copy is kept only with one shared camera, at least PP_AUTO_MIN_IMAGES registered images,
+    a reprojection error lower by PP_AUTO_MIN_GAIN and a principal point within PP_AUTO_MAX_SHIFT of
+    the centre: a phone's lens is rarely centred on its sensor (COLMAP found 14.6 px on a 1080x1920
+    phone capture), but on few images or synthetic centred cameras freeing it only fits noise.
+    """
+    _bundle_adjust(rec, options, refine_intrinsics, principal_point=False)
+    mode = options.refine_principal_point
+    info: dict[str, Any] = {"mode": mode, "refined": False}
+    if not refine_intrinsics or mode == "off":
+        return rec, info
+    n_reg, n_cams = rec.num_reg_images(), len(rec.cameras)
+    if mode == "auto" and (n_cams != 1 or n_reg < PP_AUTO_MIN_IMAGES):
+        info["why"] = f"auto: {n_reg} registered images, {n_cams} camera(s); needs one camera and >= {PP_AUTO_MIN_IMAGES}"
+        return rec, info
+    trial = pycolmap.Reconstruction(rec)
+    _bundle_adjust(trial, options, refine_intrinsics, principal_point=True)
+    before, after = rec.compute_mean_reprojection_error(), trial.compute_mean_reprojection_error()
+    shift = _principal_point_shift(trial)
+    info.update(reprojection_error_px_fixed=round(float(before), 6), reprojection_error_px_refined=round(float(after), 6),
+                shift_fraction=round(float(shift), 6))
+    gain = (before - after) / max(before, 1e-12)
+    if mode == "on" or (gain >= PP_AUTO_MIN_GAIN and shift <= PP_AUTO_MAX_SHIFT):
+        info["refined"] = True
+        return trial, info
+    info["why"] = (f"auto: refining gained {gain:.1%} (needs {PP_AUTO_MIN_GAIN:.0%}) with the principal point "
+                   f"{shift:.1%} of the image size off centre (allowed {PP_AUTO_MAX_SHIFT:.0%})")
+    return rec, info
 
 
 @contextlib.contextmanager
@@ -739,7 +810,8 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
         def make(old: pycolmap.Camera) -> pycolmap.Camera:
             if guess is None:
                 return camera_to_colmap(known_camera, old.camera_id)
-            return _guess_camera(model, old.width, old.height, guess, old.camera_id)
+            return _guess_camera(model, old.width, old.height, guess, old.camera_id,
+                                 prior=guess == options.focal_prior_hfov_deg)
         return make
 
     guesses: list[float | None] = [None] if known_camera is not None else list(options.hfov_guesses)
@@ -803,7 +875,7 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
 
     t = time.perf_counter()
     report("bundle_adjustment", 0, 1)
-    _global_bundle_adjustment(rec, options, refine)
+    rec, pp_info = _global_bundle_adjustment(rec, options, refine)
     wall["bundle_adjustment"] = time.perf_counter() - t
     report("bundle_adjustment", 1, 1)
     wall["total"] = time.perf_counter() - t_start
@@ -812,12 +884,12 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
     model_dir.mkdir()
     rec.write(model_dir)
     return _result(rec, names, n_models, attempts, "cuda" if device == pycolmap.Device.cuda else "cpu", wall,
-                   rejected, (far_checked, far_dropped))
+                   rejected, (far_checked, far_dropped), pp_info)
 
 
 def _result(rec: pycolmap.Reconstruction, names: list[str], n_models: int, attempts: list[dict[str, Any]],
             device: str, wall: dict[str, float], rejected: list[str] = (),
-            far_pairs: tuple[int, int] = (0, 0)) -> SfmResult:
+            far_pairs: tuple[int, int] = (0, 0), principal_point: dict[str, Any] | None = None) -> SfmResult:
     cam_to_world, cameras = {}, {}
     for image in rec.images.values():
         if not image.has_pose:
@@ -846,6 +918,7 @@ def _result(rec: pycolmap.Reconstruction, names: list[str], n_models: int, attem
         phase_wall_s={k: round(v, 3) for k, v in wall.items()},
         far_pairs_checked=far_pairs[0],
         far_pairs_dropped=far_pairs[1],
+        principal_point=dict(principal_point or {}),
     )
     return SfmResult(rec, tuple(names), cam_to_world, cameras, xyz, rgb, err, track, stats)
 

@@ -22,6 +22,7 @@ artifact's are) can be matched by file name.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
 from collections.abc import Callable
@@ -222,6 +223,41 @@ def list_image_files(image_dir: str | os.PathLike) -> list[Path]:
                     "taken in text order, which sequential matching relies on: use --matcher exhaustive "
                     "or zero-padded names", d)
     return files
+
+
+#: EXIF tags: the Exif sub-IFD, FocalLengthIn35mmFilm, and (IFD0) Orientation.
+_EXIF_IFD, _EXIF_FOCAL_35MM, _EXIF_ORIENTATION = 0x8769, 0xA405, 0x0112
+
+
+def exif_focal_35mm(path: str | os.PathLike) -> float | None:
+    """The 35 mm-equivalent focal length (mm) an image's EXIF states, or None."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            value = exif.get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM)
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError):
+        return None
+    try:
+        f = float(value) if value is not None else 0.0
+    except (TypeError, ValueError):
+        return None
+    return f if 4.0 <= f <= 2000.0 else None
+
+
+def exif_hfov_deg(paths: list[Path]) -> float | None:
+    """The horizontal field of view (across the long side, as ``colmap.initial_focal_px`` takes it)
+    that the images' EXIF focal length gives, when every image states the same one; else None.
+
+    A 35 mm-equivalent focal length f spans the 36 mm side of the film frame, which is the long
+    side of the image whatever its orientation: hfov = 2 atan(18 / f).
+    """
+    values = {exif_focal_35mm(p) for p in paths}
+    if len(values) != 1 or None in values:
+        return None
+    (f,) = values
+    return math.degrees(2.0 * math.atan(18.0 / f))
 
 
 def load_image_folder(image_dir: str | os.PathLike, shared_intrinsics: bool = True) -> list[SelectedFrame]:
