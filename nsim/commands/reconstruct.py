@@ -16,6 +16,11 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
               help="Skip SfM: import poses from a nerfstudio/PolyCam/Record3D transforms.json.")
 @click.option("--images-root", type=click.Path(file_okay=False), default=None,
               help="With --import: the folder the images must lie in (default: the transforms.json's folder).")
+@click.option("--skip-missing", is_flag=True,
+              help="With --import: skip frames whose image is missing (and drop missing depth, mask, ply files).")
+@click.option("--metric", is_flag=True,
+              help="With --import: the poses are in metres (PolyCam, Record3D); without a scale source "
+                   "an import's scale is arbitrary.")
 @click.option("--reference", type=click.Path(), default=None,
               help="Metric poses (transforms.json, or a TUM trajectory such as odometry) for a Sim(3) fit.")
 @click.option("--known-distance", type=float, nargs=7, default=None, metavar="X1 Y1 Z1 X2 Y2 Z2 D",
@@ -27,7 +32,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--camera-model", default=None, help="SIMPLE_RADIAL, OPENCV, OPENCV_FISHEYE or PINHOLE.")
 @click.pass_context
 def command(click_ctx, source, preset, config_file, overrides, force, tag, import_file, reference, known_distance,
-            camera_height, intrinsics, frames, camera_model, images_root):
+            camera_height, intrinsics, frames, camera_model, images_root, skip_missing, metric):
     """Camera poses from a video, a folder of images or a capture artifact (pycolmap SfM, metric scale)."""
     from nsim.errors import InputError
     from nsim.stages import reconstruct
@@ -51,7 +56,7 @@ def command(click_ctx, source, preset, config_file, overrides, force, tag, impor
         source=src_path, capture=capture, reference=Path(reference) if reference else None,
         intrinsics=Path(intrinsics) if intrinsics else None, known_distance=tuple(known_distance) if known_distance else None,
         camera_height_m=camera_height, import_transforms=Path(import_file) if import_file else None,
-        images_root=Path(images_root) if images_root else None,
+        images_root=Path(images_root) if images_root else None, skip_missing=skip_missing, metric=metric,
     )
     out = reconstruct.run(inputs, cfg, ctx)
     report_artifact(ctx, out.poses, out.cache_hit, tag)

@@ -10,6 +10,12 @@ top level (shared) or in a frame (overriding the top level), as nerfstudio allow
 ``camera_model`` means PINHOLE, or OPENCV when any distortion key is present. The writer puts
 every key whose value all frames share at the top level and the rest in the frames.
 
+Besides the images (``file_path``), a frame may name a ``depth_file_path`` and a ``mask_path``,
+and the top level a ``ply_file_path`` (sparse points in the same world as the poses);
+:func:`linked_files` resolves all of them, confined to a root folder. Depth images store
+``value x depth_unit_scale_factor`` = depth in the poses' units (:func:`depth_unit_scale`).
+:func:`declared_world` reads what nsim's own keys say about the world (metric, z up).
+
 Unknown top-level and per-frame keys are kept in ``extra`` and written back unchanged. Floats
 round-trip exactly (JSON floats are written with ``repr`` precision); the ``+-0.5`` pixel shift
 of ``cx, cy`` is exact unless ``cx + 0.5`` crosses a power of two (then off by one ulp).
@@ -21,7 +27,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, NoReturn
 
 import numpy as np
@@ -234,48 +240,107 @@ def read_transforms(path: str | os.PathLike) -> TransformsData:
 # ---------------------------------------------------------------------------- the files frames name
 
 PATH_KEYS = ("file_path", "depth_file_path", "mask_path")
+#: Tried in this order after a ``file_path`` that names no file and has no image suffix
+#: (NeRF-synthetic's ``./train/r_0``), as nerfstudio's loaders do.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".JPG", ".PNG")
 
 
-def frame_image_paths(path: str | os.PathLike, data: TransformsData,
-                      root: str | os.PathLike | None = None) -> list[Path]:
-    """Each frame's image (``file_path``), resolved against the folder of ``path``, in frame order.
+@dataclass(frozen=True)
+class LinkedFile:
+    """A file that a transforms.json names.
 
-    A transforms.json is untrusted: every path it names (``depth_file_path`` and ``mask_path``
-    too, which need not exist) must resolve, symlinks followed, inside ``root`` (default: the
-    folder of ``path``). Raises InputError naming the frame, e.g. ``t.json: frames[3].file_path:
-    ../../etc/hostname resolves outside /data/scan``, or ``... does not exist``.
+    where: the field, e.g. ``frames[3].depth_file_path`` or ``ply_file_path``; value: the path as
+    written; path: the file, resolved (symlinks followed) and inside the root, or None when it
+    does not exist; rel: its POSIX path relative to the root, as named (lexically normalised,
+    with the image suffix that was found), or relative to the resolved root when the lexical
+    path leaves it (a symlinked folder).
+    """
+
+    where: str
+    value: str
+    path: Path | None
+    rel: str
+
+
+@dataclass(frozen=True)
+class FrameFiles:
+    """The files one frame names: its image, and its depth and mask when the frame has those keys."""
+
+    image: LinkedFile
+    depth: LinkedFile | None = None
+    mask: LinkedFile | None = None
+
+
+class _Linker:
+    """Resolves the paths of one transforms.json inside ``root`` (see :func:`linked_files`)."""
+
+    def __init__(self, path: Path, root: str | os.PathLike | None):
+        self.name, self.base = str(path), path.parent
+        given = Path(root if root is not None else self.base)
+        self.root, self.root_lexical = given.resolve(), Path(os.path.normpath(given.absolute()))
+
+    def _resolve(self, where: str, value: str) -> Path:
+        try:
+            resolved = (self.base / value).resolve()
+        except (OSError, RuntimeError, ValueError) as e:  # symlink loop, NUL byte
+            raise InputError(f"{self.name}: {where}: {value}: not a usable path ({e})") from None
+        if not resolved.is_relative_to(self.root):
+            raise InputError(f"{self.name}: {where}: {value} resolves outside {self.root}")
+        return resolved
+
+    def link(self, where: str, value: str, image: bool = False) -> LinkedFile:
+        resolved = self._resolve(where, value)
+        found = value if resolved.is_file() else None
+        if found is None and image and PurePosixPath(value).suffix.lower() not in IMAGE_SUFFIXES:
+            for suffix in IMAGE_SUFFIXES:
+                candidate = self._resolve(where, value + suffix)
+                if candidate.is_file():
+                    found, resolved = value + suffix, candidate
+                    break
+        lexical = Path(os.path.normpath(self.base.absolute() / (found or value)))
+        rel = (lexical.relative_to(self.root_lexical) if lexical.is_relative_to(self.root_lexical)
+               else resolved.relative_to(self.root))
+        return LinkedFile(where, value, resolved if found is not None else None, rel.as_posix())
+
+
+def linked_files(path: str | os.PathLike, data: TransformsData,
+                 root: str | os.PathLike | None = None) -> tuple[list[FrameFiles], LinkedFile | None]:
+    """The files ``path`` names: each frame's image, depth and mask, and the top-level ``ply_file_path``.
+
+    Paths are relative to the folder of ``path``. A transforms.json is untrusted: every path it
+    names must resolve, symlinks followed, inside ``root`` (default: the folder of ``path``),
+    whether or not the file exists; InputError names the field otherwise, e.g. ``t.json:
+    frames[3].file_path: ../../etc/hostname resolves outside /data/scan``. A ``file_path``
+    without an image suffix that names no file is tried with each of ``IMAGE_SUFFIXES``.
+    Files that do not exist come back with ``path=None``; the caller decides what that means.
+    Returns (one FrameFiles per frame, in frame order; the point cloud or None).
     """
     path = Path(path)
-    base = path.parent
-    root = Path(root if root is not None else base).resolve()
-    images = []
+    linker = _Linker(path, root)
+    frames = []
     for i, frame in enumerate(data.frames):
-        for key in PATH_KEYS:
-            if (value := getattr(frame, key)) is None:
-                continue
-            where = f"{path}: frames[{i}].{key}: {value}"
-            try:
-                resolved = (base / value).resolve()
-            except (OSError, RuntimeError, ValueError) as e:  # symlink loop, NUL byte
-                raise InputError(f"{where}: not a usable path ({e})") from None
-            if not resolved.is_relative_to(root):
-                raise InputError(f"{where} resolves outside {root}")
-            if key == "file_path":
-                if not resolved.is_file():
-                    raise InputError(f"{where} does not exist")
-                images.append(resolved)
-    return images
+        image = linker.link(f"frames[{i}].file_path", frame.file_path, image=True)
+        depth, mask = (None if (value := getattr(frame, key)) is None
+                       else linker.link(f"frames[{i}].{key}", value) for key in ("depth_file_path", "mask_path"))
+        frames.append(FrameFiles(image, depth, mask))
+    ply = data.extra.get("ply_file_path")
+    if ply is not None and not isinstance(ply, str):
+        raise InputError(f"{path}: ply_file_path: expected a string, got {ply!r}")
+    return frames, None if ply is None else linker.link("ply_file_path", ply)
 
 
-def check_frame_images(path: str | os.PathLike, data: TransformsData, images: list[Path]) -> None:
-    """Decode every frame's image (``frame_image_paths``) and check its size against the frame's ``w``, ``h``.
+def check_frame_images(path: str | os.PathLike, data: TransformsData, images: list[Path | None]) -> None:
+    """Decode every frame's image and check its size against the frame's ``w``, ``h``.
 
-    Raises InputError naming the frame and file: a truncated or unreadable image, or
-    ``t.json: frames[2].file_path: b.png: image is 64x48, but w=80, h=60``.
+    images: one per frame of ``data`` (e.g. ``FrameFiles.image.path``); None (a skipped frame)
+    is not checked. Raises InputError naming the frame and file: a truncated or unreadable
+    image, or ``t.json: frames[2].file_path: b.png: image is 64x48, but w=80, h=60``.
     """
     from nsim.io.images import read_image
 
     for i, (frame, image) in enumerate(zip(data.frames, images, strict=True)):
+        if image is None:
+            continue
         where = f"{path}: frames[{i}].file_path: {frame.file_path}"
         try:
             height, width = read_image(image).shape[:2]
@@ -284,6 +349,61 @@ def check_frame_images(path: str | os.PathLike, data: TransformsData, images: li
         cam = frame.camera
         if (width, height) != (cam.width, cam.height):
             raise InputError(f"{where}: image is {width}x{height}, but w={cam.width}, h={cam.height}")
+
+
+# ---------------------------------------------------------------------------- what a file says of its world
+
+#: Top-level keys nsim writes into the transforms.json of a poses artifact: ``nsim_scale`` the
+#: scale source (``nsim.sfm.metric.ScaleReport.source``), ``nsim_metric`` whether the units are
+#: metres, ``nsim_z_up`` whether +z is up with the floor at z = 0. A capture artifact's file has
+#: ``nsim_capture`` (ground truth: metric and z-up).
+SCALE_KEY, METRIC_KEY, Z_UP_KEY, CAPTURE_KEY = "nsim_scale", "nsim_metric", "nsim_z_up", "nsim_capture"
+#: Stored depth value x this = depth in the file's world units (nerfstudio's name for it).
+DEPTH_SCALE_KEY = "depth_unit_scale_factor"
+#: nerfstudio's default for depth images without a factor: 16-bit PNGs in millimetres.
+DEFAULT_DEPTH_UNIT_SCALE = 1e-3
+
+
+def declared_world(path: str | os.PathLike, data: TransformsData) -> tuple[str | None, bool]:
+    """What ``data`` (read from ``path``) declares about its world: (why it is metric or None, z up).
+
+    Only nsim's own keys declare anything: an nsim capture (``nsim_capture``) is metric and z-up;
+    a poses artifact says so in ``nsim_metric`` and ``nsim_z_up`` (booleans). Exports of
+    PolyCam, Record3D or nerfstudio carry no such marker: their scale is declared with
+    ``nsim reconstruct --import ... --metric``.
+    """
+    extra = data.extra
+    if CAPTURE_KEY in extra:
+        return f"an nsim capture ({CAPTURE_KEY})", True
+    for key in (METRIC_KEY, Z_UP_KEY):
+        if key in extra and not isinstance(extra[key], bool):
+            raise InputError(f"{path}: {key}: expected true or false, got {extra[key]!r}")
+    if METRIC_KEY not in extra and Z_UP_KEY not in extra and SCALE_KEY in extra:  # written before nsim_metric
+        source = extra[SCALE_KEY]
+        metric = f"{SCALE_KEY}: {source}" if source in ("reference", "known_distance", "camera_height") else None
+        return metric, source in ("known_distance", "camera_height", "arbitrary")
+    metric = f"{METRIC_KEY}: true" if extra.get(METRIC_KEY) is True else None
+    return metric, extra.get(Z_UP_KEY) is True
+
+
+def depth_unit_scale(path: str | os.PathLike, data: TransformsData, depth_files: list[str]) -> float:
+    """Stored depth value x this = depth in the world units of ``data`` (read from ``path``).
+
+    The top-level ``depth_unit_scale_factor`` when present (a number > 0); otherwise 1 when every
+    depth file (``depth_files``: names as written) is an EXR (float metres, as nsim writes them),
+    else ``DEFAULT_DEPTH_UNIT_SCALE`` (nerfstudio's millimetre PNGs).
+    """
+    value = data.extra.get(DEPTH_SCALE_KEY)
+    if value is not None:
+        number = _Reader(Path(path)).number(value, DEPTH_SCALE_KEY)
+        if number <= 0.0:
+            raise InputError(f"{path}: {DEPTH_SCALE_KEY}: expected a number > 0, got {value!r}")
+        return number
+    exr = {PurePosixPath(f).suffix.lower() == ".exr" for f in depth_files}
+    if len(exr) > 1:
+        raise InputError(f"{path}: the depth files are partly EXR, partly not: give {DEPTH_SCALE_KEY} "
+                         "(stored value x factor = depth in the file's units)")
+    return 1.0 if exr == {True} else DEFAULT_DEPTH_UNIT_SCALE
 
 
 # ---------------------------------------------------------------------------- writing

@@ -12,7 +12,13 @@ One of three sources fixes the scale (at most one may be given):
 * the **camera height** above the floor.
 
 Without a reference the world is first gravity-aligned (:func:`nsim.sfm.align.gravity_align`:
-floor at z = 0, +z up). With no source at all the scale stays arbitrary and the report says so.
+floor at z = 0, +z up), unless the input declares itself z-up (an imported nsim capture). An
+imported transforms.json may also declare its own units metres (``--metric``, or nsim's keys:
+see ``nsim.io.transforms_json``); that is the fourth, weakest source (scale 1). With no source at
+all the scale stays arbitrary and the report says so.
+
+:func:`metric_frame` is the core (poses and points in, a :class:`Similarity` out), shared by SfM
+runs (:func:`to_metric`) and imports (``nsim.stages.reconstruct``).
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.sfm.align import (
+    apply_sim3_to_poses,
     associate_by_name,
     associate_by_time,
     fit_sim3,
@@ -33,6 +40,7 @@ from nsim.sfm.align import (
     require_matches,
     scale_from_camera_height,
     scale_from_known_distance,
+    sim3_matrix,
 )
 from nsim.sfm.colmap import SfmResult, transform_result
 
@@ -40,8 +48,9 @@ log = logging.getLogger(__name__)
 
 #: Default largest |dt| when matching frames to reference poses by timestamp (half a frame at 25 fps).
 DEFAULT_MAX_DT_S = 0.02
-ARBITRARY_SCALE_MESSAGE = ("scale is arbitrary: no --reference, --known-distance or --camera-height was given, "
-                           "so distances in the output are in unknown units (the floor is z = 0, +z is up)")
+ARBITRARY_SCALE_MESSAGE = ("scale is arbitrary: no --reference, --known-distance or --camera-height (or, for an "
+                           "import, --metric) was given, so distances in the output are in unknown units "
+                           "(the floor is z = 0, +z is up)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,10 +71,12 @@ class Reference:
 class ScaleReport:
     """How the output got its scale and frame (for report.json).
 
-    source: "reference" | "known_distance" | "camera_height" | "arbitrary"; scale: the factor
-    applied to SfM units; matched: reference poses used (inliers) of those associated;
-    residual_rms_m / residual_median_m: Sim(3) residuals over the inliers (reference only);
-    floor_found: whether gravity alignment found a floor plane (None with a reference).
+    source: "reference" | "known_distance" | "camera_height" | "metric" (an import declared metric)
+    | "arbitrary"; scale: the factor applied to the input's units; matched: reference poses used
+    (inliers) of those associated; residual_rms_m / residual_median_m: Sim(3) residuals over the
+    inliers (reference only); floor_found: whether gravity alignment found a floor plane (None
+    without gravity alignment); frame: "reference" (the reference's world), "gravity" (z up, floor
+    at z = 0, found here) or "as_given" (an input declared z-up, kept).
     """
 
     source: str
@@ -77,6 +88,7 @@ class ScaleReport:
     residual_median_m: float | None = None
     floor_found: bool | None = None
     floor_inliers: int | None = None
+    frame: str = ""
     message: str = ""
 
     def to_dict(self) -> dict:
@@ -110,7 +122,7 @@ def load_reference(path: str | os.PathLike) -> Reference:
     return Reference(str(path), traj.poses_se3(), None, traj.timestamps_s)
 
 
-def _associate(result: SfmResult, names: list[str], timestamps_s: dict[str, float] | None, ref: Reference,
+def _associate(names: list[str], timestamps_s: dict[str, float] | None, ref: Reference,
                max_dt_s: float) -> tuple[np.ndarray, np.ndarray, str]:
     by_name = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     if ref.names is not None:
@@ -131,6 +143,85 @@ def _associate(result: SfmResult, names: list[str], timestamps_s: dict[str, floa
     raise InputError(f"{ref.source}: the reference has neither file names nor timestamps to match frames by")
 
 
+@dataclass(frozen=True, eq=False)
+class Similarity:
+    """``x -> s R x + t`` from an input world (SfM's, or an imported file's) to the output world.
+
+    R: (3, 3) rotation; t: (3,). Poses move with ``apply_sim3_to_poses`` (they stay rigid).
+    """
+
+    s: float
+    R: np.ndarray
+    t: np.ndarray
+
+    def matrix(self) -> np.ndarray:
+        """(4, 4) ``[[s R, t], [0, 1]]``."""
+        return sim3_matrix(self.s, self.R, self.t)
+
+
+def metric_frame(
+    cam_to_world: np.ndarray,
+    points_xyz: np.ndarray,
+    names: list[str],
+    timestamps_s: dict[str, float] | None = None,
+    reference: Reference | None = None,
+    known_distance: tuple[np.ndarray, np.ndarray, float] | None = None,
+    camera_height_m: float | None = None,
+    declared_metric: str | None = None,
+    declared_z_up: bool = False,
+    max_dt_s: float = DEFAULT_MAX_DT_S,
+    seed: int = 0,
+) -> tuple[Similarity, ScaleReport]:
+    """The similarity taking an input world to a metric (or, without a source, z-up arbitrary-scale) one.
+
+    cam_to_world: (N, 4, 4) OpenCV axes in the input world; points_xyz: (P, 3) sparse points there
+    (the floor is looked for among them); names: (N,) frame file names, for matching a reference by
+    name; timestamps_s: name -> seconds, for matching it by time. known_distance: (point_a (3,),
+    point_b (3,), metres) in the output frame of the same input without a scale source.
+    declared_metric: why the input's own units are metres (e.g. ``"--metric"``), or None;
+    declared_z_up: the input world already has +z up and the floor at z = 0, so it is kept
+    (no gravity alignment). The explicit sources (reference, known distance, camera height)
+    override a declared metric scale; at most one of them may be given.
+    """
+    given = [x is not None for x in (reference, known_distance, camera_height_m)]
+    if sum(given) > 1:
+        raise ValueError("metric_frame: give at most one of reference, known_distance, camera_height_m")
+    c2w = np.asarray(cam_to_world, dtype=np.float64)
+    pts = np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3)
+    if reference is not None:
+        ie, ir, how = _associate(names, timestamps_s, reference, max_dt_s)
+        fit = fit_sim3(c2w[ie, :3, 3], reference.cam_to_world[ir, :3, 3])
+        log.info("Sim(3) to %s: scale %.6g, %d of %d pairs, rms %.4f m", reference.source, fit.s,
+                 int(fit.inliers.sum()), len(ie), fit.rms_m)
+        return Similarity(fit.s, fit.R, fit.t), ScaleReport(
+            "reference", fit.s, int(fit.inliers.sum()), len(ie), how, fit.rms_m, fit.median_m, frame="reference",
+            message=f"metric scale and frame from {reference.source}")
+    if declared_z_up:
+        R, t, floor = np.eye(3), np.zeros(3), {"frame": "as_given"}
+    else:
+        if camera_height_m is not None and len(pts) == 0:
+            raise InputError("camera height: there are no sparse points to find the floor among (an import "
+                             "without ply_file_path); use --reference or --known-distance instead")
+        gravity = gravity_align(pts, c2w, seed=seed)
+        if not gravity.floor_found:
+            log.warning("no floor plane found among the sparse points: up comes from the cameras only")
+        R, t = gravity.R, gravity.t
+        floor = {"floor_found": gravity.floor_found, "floor_inliers": gravity.floor_inliers, "frame": "gravity"}
+    if known_distance is not None:
+        a, b, d = known_distance
+        s = scale_from_known_distance(a, b, d)
+        source, message = "known_distance", f"metric scale from a known distance of {d:g} m"
+    elif camera_height_m is not None:
+        s = scale_from_camera_height(apply_sim3_to_poses(1.0, R, t, c2w), camera_height_m)
+        source, message = "camera_height", f"metric scale from a camera height of {camera_height_m:g} m"
+    elif declared_metric is not None:
+        s, source, message = 1.0, "metric", f"metric scale as given ({declared_metric})"
+    else:
+        log.warning(ARBITRARY_SCALE_MESSAGE)
+        s, source, message = 1.0, "arbitrary", ARBITRARY_SCALE_MESSAGE
+    return Similarity(s, R, s * t), ScaleReport(source, s, **floor, message=message)
+
+
 def to_metric(
     result: SfmResult,
     timestamps_s: dict[str, float] | None = None,
@@ -140,38 +231,13 @@ def to_metric(
     max_dt_s: float = DEFAULT_MAX_DT_S,
     seed: int = 0,
 ) -> tuple[SfmResult, ScaleReport]:
-    """The reconstruction in a metric (or, without a source, z-up arbitrary-scale) world.
+    """The reconstruction in a metric (or, without a source, z-up arbitrary-scale) world (:func:`metric_frame`).
 
     timestamps_s: image name -> seconds (video frames), for matching a reference by time.
     known_distance: (point_a (3,), point_b (3,), metres) in the arbitrary-scale output frame.
     Returns the transformed result (the input is not modified) and how its scale was set.
     """
-    given = [x is not None for x in (reference, known_distance, camera_height_m)]
-    if sum(given) > 1:
-        raise ValueError("to_metric: give at most one of reference, known_distance, camera_height_m")
     names = result.registered_names
-    poses = result.poses_se3(names)
-    if reference is not None:
-        ie, ir, how = _associate(result, names, timestamps_s, reference, max_dt_s)
-        fit = fit_sim3(poses[ie, :3, 3], reference.cam_to_world[ir, :3, 3])
-        log.info("Sim(3) to %s: scale %.6g, %d of %d pairs, rms %.4f m", reference.source, fit.s,
-                 int(fit.inliers.sum()), len(ie), fit.rms_m)
-        return transform_result(result, fit.s, fit.R, fit.t), ScaleReport(
-            "reference", fit.s, int(fit.inliers.sum()), len(ie), how, fit.rms_m, fit.median_m,
-            message=f"metric scale and frame from {reference.source}")
-    gravity = gravity_align(result.points_xyz, poses, seed=seed)
-    if not gravity.floor_found:
-        log.warning("no floor plane found among the sparse points: up comes from the cameras only")
-    upright = transform_result(result, 1.0, gravity.R, gravity.t)
-    floor = {"floor_found": gravity.floor_found, "floor_inliers": gravity.floor_inliers}
-    if known_distance is not None:
-        a, b, d = known_distance
-        s = scale_from_known_distance(a, b, d)
-        return transform_result(upright, s, np.eye(3), np.zeros(3)), ScaleReport(
-            "known_distance", s, **floor, message=f"metric scale from a known distance of {d:g} m")
-    if camera_height_m is not None:
-        s = scale_from_camera_height(upright.poses_se3(names), camera_height_m)
-        return transform_result(upright, s, np.eye(3), np.zeros(3)), ScaleReport(
-            "camera_height", s, **floor, message=f"metric scale from a camera height of {camera_height_m:g} m")
-    log.warning(ARBITRARY_SCALE_MESSAGE)
-    return upright, ScaleReport("arbitrary", 1.0, **floor, message=ARBITRARY_SCALE_MESSAGE)
+    sim, report = metric_frame(result.poses_se3(names), result.points_xyz, names, timestamps_s, reference,
+                               known_distance, camera_height_m, max_dt_s=max_dt_s, seed=seed)
+    return transform_result(result, sim.s, sim.R, sim.t), report

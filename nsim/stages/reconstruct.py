@@ -3,17 +3,28 @@
 Inputs are files (a video, an image folder, optional reference/intrinsics files) or a capture
 artifact. Files are not artifacts: their content digests enter the action key, so editing a
 file never serves a stale result. ``--import transforms.json`` skips SfM and brings poses
-from nerfstudio / PolyCam / Record3D exports (OpenGL convention) into the workspace; the
-images it names must lie inside its folder (or ``images_root``), decode, and match its ``w``,
-``h``, and their bytes enter the action key.
+from nerfstudio / PolyCam / Record3D exports (OpenGL convention) into the workspace
+(``nsim.sfm.imported``): the files it names (images, depths, masks, ply) must lie inside its
+folder (or ``images_root``), the images decode and match its ``w``, ``h``, and every file's
+bytes and name in the artifact enter the action key. A missing file is an error, or with
+``skip_missing`` a skipped frame (or a dropped depth, mask or ply) that report.json lists. The
+scale sources and gravity alignment are the SfM run's; an import may also be declared metric
+(``metric``, or nsim's own keys in the file: ``nsim.io.transforms_json.declared_world``);
+without any source its scale is arbitrary and transforms.json (``nsim_scale``,
+``nsim_metric``) and report.json say so.
 
 Artifact layout (kind ``poses``)::
 
     transforms.json      nerfstudio convention, metric (unless report.json says the scale is
-                         arbitrary), per-frame intrinsics and distortion, timestamps for video
-    images/              the selected frames (PNG, lossless)
+                         arbitrary), per-frame intrinsics and distortion, timestamps for video;
+                         nsim_scale (the scale source), nsim_metric, nsim_z_up
+    images/              the selected frames (PNG, lossless); an import's under their own names
+    depth/, masks/       an import's depth and mask images, as given (depth_unit_scale_factor
+                         in transforms.json: stored value x factor = depth in output units)
     sparse/              the COLMAP model (cameras.bin, images.bin, points3D.bin), metric, z up
-    sparse_points.ply    the sparse points with colour, reprojection error and track length
+                         (not for an import)
+    sparse_points.ply    the sparse points with colour, reprojection error and track length; an
+                         import's ply_file_path points, moved into the output world
     report.json          images given/registered, mean reprojection error, mean track length,
                          number of 3D points, scale source and Sim(3) residual, the options used
     top_down.png         the camera path over the sparse points, from above
@@ -40,10 +51,10 @@ from nsim.errors import InputError
 from nsim.progress import progress_bar
 
 if TYPE_CHECKING:
-    from nsim.io.transforms_json import TransformsData
+    from nsim.sfm.imported import ImportPlan
 
 STAGE = "reconstruct"
-VERSION = 2
+VERSION = 3
 CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
 MATCHERS = ("sequential", "exhaustive")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
@@ -69,10 +80,13 @@ class Inputs:
     """What to reconstruct and how to scale it.
 
     source: a video file, an image folder, or (``capture``) a capture artifact id whose video
-    is used; import_transforms: an exported transforms.json, whose images (paths relative to
-    its folder) must lie inside images_root (default: its folder); reference: transforms.json
-    or TUM file with metric poses; intrinsics: a transforms.json / YAML / JSON camera file; known_distance: (x1, y1, z1, x2, y2, z2, d_m) in
-    the frame of an unscaled run; camera_height_m: the capture's mean camera height.
+    is used; import_transforms: an exported transforms.json, whose files (paths relative to
+    its folder) must lie inside images_root (default: its folder); skip_missing: skip its
+    frames whose image is missing (and drop missing depths, masks, ply) instead of failing;
+    metric: its poses are in metres (PolyCam, Record3D). reference: transforms.json or TUM file
+    with metric poses; intrinsics: a transforms.json / YAML / JSON camera file; known_distance:
+    (x1, y1, z1, x2, y2, z2, d_m) in the frame of an unscaled run; camera_height_m: the
+    capture's mean camera height.
     """
 
     source: Path | None = None
@@ -83,6 +97,8 @@ class Inputs:
     camera_height_m: float | None = None
     import_transforms: Path | None = None
     images_root: Path | None = None
+    skip_missing: bool = False
+    metric: bool = False
 
     def ids(self) -> dict[str, str]:
         return {"capture": self.capture} if self.capture else {}
@@ -91,9 +107,13 @@ class Inputs:
         sources = [x is not None for x in (self.source, self.capture, self.import_transforms)]
         if sum(sources) != 1:
             raise InputError("reconstruct: give exactly one of a video/image folder, a capture, or --import")
-        scales = [x is not None for x in (self.reference, self.known_distance, self.camera_height_m)]
+        scales = [x is not None for x in (self.reference, self.known_distance, self.camera_height_m)] + [self.metric]
         if sum(scales) > 1:
-            raise InputError("reconstruct: give at most one of --reference, --known-distance, --camera-height")
+            raise InputError("reconstruct: give at most one of --reference, --known-distance, --camera-height, "
+                             "--metric")
+        for flag, value in (("--metric", self.metric), ("--skip-missing", self.skip_missing)):
+            if value and self.import_transforms is None:
+                raise InputError(f"{flag}: only with --import")
         for name in ("source", "reference", "intrinsics", "import_transforms", "images_root"):
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
@@ -139,15 +159,15 @@ def _file_digest(path: Path) -> str:
     return sha256_file(path)[0]
 
 
-def file_digests(inputs: Inputs, image_digests: list[str] | None = None) -> dict[str, str]:
-    """Content digests of the file inputs; an import's images (per-file SHA-256, in frame order) as one."""
+def file_digests(inputs: Inputs, import_digest: str | None = None) -> dict[str, str]:
+    """Content digests of the file inputs; an import's files (names in the artifact and content) as one."""
     files = {
         name: _digest_path(Path(p))
         for name in ("source", "reference", "intrinsics", "import_transforms")
         if (p := getattr(inputs, name)) is not None
     }
-    if image_digests is not None:
-        files["import_images"] = hashlib.sha256("\n".join(image_digests).encode()).hexdigest()
+    if import_digest is not None:
+        files["import_files"] = import_digest
     return files
 
 
@@ -158,6 +178,8 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str,
         "files": files,
         "known_distance": list(inputs.known_distance) if inputs.known_distance else None,
         "camera_height_m": inputs.camera_height_m,
+        "metric": inputs.metric,
+        "skip_missing": inputs.skip_missing,
         "device": device,
     }
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
@@ -171,21 +193,24 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     if inputs.capture is not None:
         ctx.store.resolve(inputs.capture, kind="capture")
     device = "cpu" if inputs.import_transforms is not None else ("cuda" if ctx.device.startswith("cuda") else "cpu")
-    imported = _read_import(inputs) if inputs.import_transforms is not None else None
-    files = file_digests(inputs, None if imported is None else [digest for _, digest in imported[2]])
+    plan = None
+    if inputs.import_transforms is not None:
+        from nsim.sfm.imported import plan_import
+
+        plan = plan_import(Path(inputs.import_transforms), inputs.images_root, inputs.skip_missing)
+    files = file_digests(inputs, None if plan is None else plan.digest())
     key = action_key(inputs, cfg, ctx, device, files)
     if not ctx.force and (hit := ctx.store.lookup(key)) is not None:
         return Outputs(poses=hit.id, cache_hit=True)
-    if imported is not None:
-        from nsim.io.transforms_json import check_frame_images
+    if plan is not None:
+        from nsim.sfm.imported import check_import
 
-        path, data, images = imported
-        check_frame_images(path, data, [image for image, _ in images])  # before anything is published
+        check_import(plan)  # before anything is published
     with ctx.store.publish(
         kind="poses", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(), seed=ctx.seed
     ) as out:
-        if imported is not None:
-            summary = import_transforms(*imported, out.dir)
+        if plan is not None:
+            summary = import_transforms(inputs, cfg, ctx, plan, out.dir)
         else:
             summary = reconstruct(inputs, cfg, ctx, device, out.dir, out.timing)
         out.summary.update(summary)
@@ -193,6 +218,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         out.summary["scale_inputs"] = {
             "known_distance": list(inputs.known_distance) if inputs.known_distance else None,
             "camera_height_m": inputs.camera_height_m,
+            "metric": inputs.metric,
         }
     return Outputs(poses=out.ref)
 
@@ -225,19 +251,23 @@ def _known_camera(path: Path | None):
 def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_dir: Path,
                 timing: dict[str, Any]) -> dict[str, Any]:
     from nsim.io.ply import write_ply
-    from nsim.io.transforms_json import Frame, TransformsData, write_transforms
+    from nsim.io.transforms_json import (
+        METRIC_KEY,
+        SCALE_KEY,
+        Z_UP_KEY,
+        Frame,
+        TransformsData,
+        write_transforms,
+    )
     from nsim.sfm.colmap import SfmOptions, run_sfm, write_model
     from nsim.sfm.frames import load_image_folder, select_video_frames, write_frames
-    from nsim.sfm.metric import load_reference, to_metric
+    from nsim.sfm.metric import to_metric
     from nsim.sfm.plot import write_top_down_png
 
     phases: dict[str, float] = {}
     t0 = time.perf_counter()
     known_camera = _known_camera(inputs.intrinsics)
-    reference = None
-    if inputs.reference is not None:
-        # named by file name only: where the file lies must not change the artifact's bytes
-        reference = dataclasses.replace(load_reference(inputs.reference), source=Path(inputs.reference).name)
+    reference, kd = _scale_inputs(inputs)
     capture_times: dict[str, float] = {}
     if inputs.capture is not None:
         # the capture's lossless frames (its video is mp4v-compressed, as a phone's would be)
@@ -270,10 +300,6 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
         result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,
                          progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
     timestamps = {f.name: f.timestamp_s for f in frames if f.timestamp_s is not None} or capture_times or None
-    kd = None
-    if inputs.known_distance is not None:
-        v = np.asarray(inputs.known_distance, dtype=float)
-        kd = (v[:3], v[3:6], float(v[6]))
     t1 = time.perf_counter()
     result, scale = to_metric(result, timestamps, reference=reference, known_distance=kd,
                               camera_height_m=inputs.camera_height_m, max_dt_s=cfg.max_dt_s, seed=ctx.seed)
@@ -286,7 +312,8 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
               timestamp_s=(timestamps or {}).get(n))
         for n in names
     ]
-    write_transforms(out_dir / "transforms.json", TransformsData(frames=tframes, extra={"nsim_scale": scale.source}))
+    write_transforms(out_dir / "transforms.json", TransformsData(frames=tframes, extra={
+        SCALE_KEY: scale.source, METRIC_KEY: scale.source != "arbitrary", Z_UP_KEY: scale.frame == "gravity"}))
     write_model(result, out_dir / "sparse")
     write_ply(out_dir / "sparse_points.ply", result.points_xyz.astype(np.float32),
               rgb=result.points_rgb.astype(np.uint8),
@@ -319,41 +346,31 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
     }
 
 
-def _read_import(inputs: Inputs) -> tuple[Path, TransformsData, list[tuple[Path, str]]]:
-    """The transforms.json to import, parsed, and its images (confined, resolved) with their SHA-256."""
-    from nsim.io.transforms_json import frame_image_paths, read_transforms
+def _scale_inputs(inputs: Inputs):
+    """The reference (named by file name only: where the file lies must not change the artifact's
+    bytes) and the known distance as (point_a, point_b, metres), each None when not given."""
+    from nsim.sfm.metric import load_reference
 
-    path = Path(inputs.import_transforms)
-    data = read_transforms(path)
-    if not data.frames:
-        raise InputError(f"{path}: has no frames")
-    images = frame_image_paths(path, data, inputs.images_root)
-    return path, data, [(image, _file_digest(image)) for image in images]
+    reference = kd = None
+    if inputs.reference is not None:
+        reference = dataclasses.replace(load_reference(inputs.reference), source=Path(inputs.reference).name)
+    if inputs.known_distance is not None:
+        v = np.asarray(inputs.known_distance, dtype=float)
+        kd = (v[:3], v[3:6], float(v[6]))
+    return reference, kd
 
 
-def import_transforms(path: Path, data: TransformsData, images: list[tuple[Path, str]],
+def import_transforms(inputs: Inputs, cfg: Config, ctx: RunContext, plan: ImportPlan,
                       out_dir: Path) -> dict[str, Any]:
-    """Bring an exported transforms.json (nerfstudio / PolyCam / Record3D) and its images in.
+    """Bring an exported transforms.json (nerfstudio / PolyCam / Record3D) and its files in (``plan_import``)."""
+    from nsim.sfm.imported import write_import
 
-    data: ``path`` as read; images: each frame's image and the SHA-256 it was checked with (``_read_import``).
-    """
-    from nsim.io.transforms_json import Frame, TransformsData, write_transforms
-
-    (out_dir / "images").mkdir()
-    frames = []
-    for i, (f, (src, digest)) in enumerate(zip(data.frames, images, strict=True)):
-        name = f"frame_{i:05d}{src.suffix.lower()}"
-        content = src.read_bytes()
-        if hashlib.sha256(content).hexdigest() != digest:
-            raise InputError(f"{path}: frames[{i}].file_path: {src} changed during the import")
-        (out_dir / "images" / name).write_bytes(content)
-        frames.append(Frame(file_path=f"images/{name}", cam_to_world=f.cam_to_world, camera=f.camera,
-                            timestamp_s=f.timestamp_s))
-    write_transforms(out_dir / "transforms.json", TransformsData(frames=frames, extra={"nsim_scale": "import"}))
-    report = {"source": path.name, "images_given": len(frames), "images_registered": len(frames),
-              "scale": {"source": "import", "message": "poses imported as given (assumed metric)"}}
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1, sort_keys=True) + "\n")
-    return {"images_given": len(frames), "images_registered": len(frames), "scale_source": "import"}
+    reference, kd = _scale_inputs(inputs)
+    report = write_import(plan, out_dir, reference=reference, known_distance=kd,
+                          camera_height_m=inputs.camera_height_m, metric=inputs.metric, max_dt_s=cfg.max_dt_s,
+                          seed=ctx.seed)
+    return {"images_given": report["images_given"], "images_registered": report["images_registered"],
+            "images_skipped": len(report["skipped_frames"]), "scale_source": report["scale"]["source"]}
 
 
 def _jsonable(x: Any) -> Any:

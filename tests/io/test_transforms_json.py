@@ -12,7 +12,15 @@ from scipy.spatial.transform import Rotation
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.geometry.transforms import make_se3
-from nsim.io.transforms_json import Frame, TransformsData, read_transforms, write_transforms
+from nsim.io.transforms_json import (
+    Frame,
+    TransformsData,
+    declared_world,
+    depth_unit_scale,
+    linked_files,
+    read_transforms,
+    write_transforms,
+)
 
 CAMERAS = {
     "pinhole": Camera("PINHOLE", 640, 480, 500.123456789, 501.987654321, 319.7, 240.3),
@@ -197,3 +205,69 @@ def test_write_rejects_reserved_extra_keys(tmp_path):
     with pytest.raises(ValueError, match="reserved"):
         write_transforms(tmp_path / "t.json", TransformsData([], extra={"frames": []}))
     assert not (tmp_path / "t.json").exists()
+
+
+# ---------------------------------------------------------------------------- the files frames name
+
+def _touch(path, content: bytes = b"x"):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(content)
+    return path
+
+
+def _with_paths(tmp_path, file_paths, **top):
+    cam = CAMERAS["pinhole"]
+    frames = [Frame(fp, np.eye(4), cam, **({"depth_file_path": "d/0.png"} if i == 0 else {}))
+              for i, fp in enumerate(file_paths)]
+    (tmp_path / "scan").mkdir()
+    return write_transforms(tmp_path / "scan" / "transforms.json", TransformsData(frames, extra=top))
+
+
+def test_linked_files_resolve_suffixes_in_nerfstudio_order(tmp_path):
+    path = _with_paths(tmp_path, ["./train/r_0", "train/r_1", "train/r_2.png"], ply_file_path="pc.ply")
+    scan = path.parent
+    for name in ("train/r_0.jpg", "train/r_0.png", "train/r_1.JPG", "d/0.png"):
+        _touch(scan / name)
+    frames, ply = linked_files(path, read_transforms(path))
+    assert [f.image.rel for f in frames] == ["train/r_0.png", "train/r_1.JPG", "train/r_2.png"]
+    assert frames[0].image.path == (scan / "train/r_0.png").resolve() and frames[2].image.path is None  # missing
+    assert frames[0].depth.rel == "d/0.png" and frames[1].depth is None and frames[0].mask is None
+    assert ply.where == "ply_file_path" and ply.path is None and ply.rel == "pc.ply"
+
+
+def test_linked_files_relative_to_the_root(tmp_path):
+    path = _with_paths(tmp_path, ["../shared/a.png", "b.png"])
+    _touch(tmp_path / "shared/a.png")
+    _touch(path.parent / "b.png")
+    with pytest.raises(InputError, match=r"frames\[0\].file_path: ../shared/a.png resolves outside"):
+        linked_files(path, read_transforms(path))
+    frames, _ = linked_files(path, read_transforms(path), root=tmp_path)
+    assert [f.image.rel for f in frames] == ["shared/a.png", "scan/b.png"]
+
+
+def test_depth_unit_scale(tmp_path):
+    data = TransformsData([])
+    assert depth_unit_scale("t.json", data, ["d/0.png", "d/1.png"]) == 1e-3  # nerfstudio's millimetre PNGs
+    assert depth_unit_scale("t.json", data, ["d/0.exr"]) == 1.0  # nsim's EXRs in metres
+    assert depth_unit_scale("t.json", TransformsData([], extra={"depth_unit_scale_factor": 0.5}), ["d.png"]) == 0.5
+    with pytest.raises(InputError, match="partly EXR"):
+        depth_unit_scale("t.json", data, ["d/0.exr", "d/1.png"])
+    with pytest.raises(InputError, match="t.json: depth_unit_scale_factor: expected a number > 0"):
+        depth_unit_scale("t.json", TransformsData([], extra={"depth_unit_scale_factor": 0}), ["d.png"])
+
+
+@pytest.mark.parametrize("extra, declared", [
+    ({}, (None, False)),
+    ({"aabb_scale": 16, "orientation_override": "none"}, (None, False)),  # PolyCam via nerfstudio: not declared
+    ({"nsim_capture": "capture"}, ("an nsim capture (nsim_capture)", True)),
+    ({"nsim_scale": "camera_height", "nsim_metric": True, "nsim_z_up": True}, ("nsim_metric: true", True)),
+    ({"nsim_scale": "arbitrary", "nsim_metric": False, "nsim_z_up": True}, (None, True)),
+    ({"nsim_scale": "reference"}, ("nsim_scale: reference", False)),  # written before nsim_metric
+])
+def test_declared_world(extra, declared):
+    assert declared_world("t.json", TransformsData([], extra=extra)) == declared
+
+
+def test_declared_world_rejects_non_booleans():
+    with pytest.raises(InputError, match="t.json: nsim_metric: expected true or false"):
+        declared_world("t.json", TransformsData([], extra={"nsim_metric": "yes"}))

@@ -84,3 +84,60 @@ def test_top_down_png(pinhole_sfm, pinhole_capture, tmp_path):
                               title="test", reference_xyz=pinhole_capture.cam_to_world[:, :3, 3])
     image = read_image(path)
     assert image.shape == (600, 600, 3) and image.std() > 10
+
+
+def _z_up_scene(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Cameras 1.2-1.6 m above a floor at z = 0, looking level-ish; floor points. Metric, z up."""
+    from nsim.geometry.transforms import look_at
+
+    rng = np.random.default_rng(seed)
+    a = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+    eye = np.stack([np.cos(a), np.sin(a), rng.uniform(1.2, 1.6, len(a))], axis=1)
+    c2w = look_at(eye, np.stack([3 * np.cos(a + 1), 3 * np.sin(a + 1), np.ones(len(a))], axis=1))
+    return c2w, np.c_[rng.uniform(-3, 3, (300, 2)), np.zeros(300)]
+
+
+def _moved(c2w, pts, s=2.5, rotvec=(0.3, -1.1, 0.7), t=(1.0, 2.0, -3.0)):
+    from scipy.spatial.transform import Rotation
+
+    from nsim.sfm.align import apply_sim3_to_points, apply_sim3_to_poses
+
+    R = Rotation.from_rotvec(rotvec).as_matrix()
+    return apply_sim3_to_poses(s, R, np.asarray(t), c2w), apply_sim3_to_points(s, R, np.asarray(t), pts)
+
+
+def test_metric_frame_sources_on_arrays():
+    from nsim.sfm.align import apply_sim3_to_poses
+    from nsim.sfm.metric import metric_frame
+
+    c2w, pts = _z_up_scene()
+    moved, moved_pts = _moved(c2w, pts)
+    names = [f"{i}.png" for i in range(len(c2w))]
+    height = float(np.median(c2w[:, 2, 3]))
+    sim, report = metric_frame(moved, moved_pts, names, camera_height_m=height)
+    out = apply_sim3_to_poses(sim.s, sim.R, sim.t, moved)
+    assert (report.source, report.frame, report.floor_found) == ("camera_height", "gravity", True)
+    assert sim.s == pytest.approx(1 / 2.5, rel=1e-6)
+    np.testing.assert_allclose(out[:, 2, :], c2w[:, 2, :], atol=1e-6)  # heights and tilts: z up, floor at 0
+    ref = Reference("gt.json", c2w, tuple(names))
+    sim, report = metric_frame(moved, moved_pts, names, reference=ref, declared_metric="--metric")
+    assert (report.source, report.frame, report.associated_by) == ("reference", "reference", "name")
+    np.testing.assert_allclose(apply_sim3_to_poses(sim.s, sim.R, sim.t, moved), c2w, atol=1e-9)
+    sim, report = metric_frame(moved, moved_pts, names, declared_metric="--metric")  # scale 1, z up
+    assert (report.source, report.scale, sim.s) == ("metric", 1.0, 1.0) and "--metric" in report.message
+    sim, report = metric_frame(moved, moved_pts, names)
+    assert report.source == "arbitrary" and sim.s == 1.0
+    sim, report = metric_frame(c2w, pts, names, declared_metric="an nsim capture", declared_z_up=True)
+    assert (report.source, report.frame, report.floor_found) == ("metric", "as_given", None)
+    np.testing.assert_array_equal(sim.matrix(), np.eye(4))
+
+
+def test_metric_frame_camera_height_needs_a_floor():
+    from nsim.sfm.metric import metric_frame
+
+    c2w, _ = _z_up_scene()
+    names = [f"{i}.png" for i in range(len(c2w))]
+    with pytest.raises(InputError, match="no sparse points to find the floor among"):
+        metric_frame(c2w, np.zeros((0, 3)), names, camera_height_m=1.4)
+    sim, report = metric_frame(c2w, np.zeros((0, 3)), names, camera_height_m=2.8, declared_z_up=True)
+    assert sim.s == pytest.approx(2.8 / np.median(c2w[:, 2, 3]))  # a z-up input has its floor at 0
