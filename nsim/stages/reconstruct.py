@@ -72,6 +72,10 @@ class Config:
     loop_detection: bool = True
     max_features: int = param(8192, ge=64)
     min_registered_fraction: float = param(0.5, gt=0.0, le=1.0)
+    refine_principal_point: str = param("auto", choices=("auto", "on", "off"),
+                                        help="free the principal point in the final bundle adjustment "
+                                             "(auto: when it lowers the error, see nsim.sfm.colmap)")
+    exif_focal_prior: bool = param(True, help="an image folder's EXIF 35 mm focal length as the first focal guess")
     max_dt_s: float = param(0.02, gt=0.0, help="largest timestamp gap when matching a reference")
 
 
@@ -188,6 +192,14 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str,
 # ----------------------------------------------------------------------------------------------
 
 
+def _image_status(name: str, stats: dict[str, Any]) -> str:
+    if name in stats.get("rejected", ()):
+        return "registered, then dropped: its pose jumped away from both neighbours"
+    if name in stats.get("unregistered", ()):
+        return "not registered"
+    return "used"
+
+
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     inputs.validate()
     if inputs.capture is not None:
@@ -290,10 +302,16 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
     write_frames(frames, out_dir / "images")
     phases["frame_selection_s"] = time.perf_counter() - t0
 
+    focal_prior = None
+    if source.is_dir() and inputs.capture is None and known_camera is None and cfg.exif_focal_prior:
+        from nsim.sfm.frames import exif_hfov_deg, list_image_files
+
+        focal_prior = exif_hfov_deg(list_image_files(source))
     options = SfmOptions(
         camera_model=cfg.camera_model, shared_intrinsics=cfg.shared_intrinsics, matcher=cfg.matcher,
         overlap=cfg.overlap, loop_detection=cfg.loop_detection, max_features=cfg.max_features, device=device,
         seed=ctx.seed, min_registered_fraction=cfg.min_registered_fraction,
+        refine_principal_point=cfg.refine_principal_point, focal_prior_hfov_deg=focal_prior,
     )
     with tempfile.TemporaryDirectory(prefix="nsim-sfm-") as work, \
             progress_bar(None, "structure from motion", ctx.show_progress) as bar:
@@ -331,6 +349,10 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
         "scale": scale.to_dict(),
         "sfm": stats,
         "frames_selected": len(frames),
+        "focal_prior": {"source": "exif", "hfov_deg": focal_prior} if focal_prior is not None else None,
+        "principal_point": stats.get("principal_point"),
+        # every input image and what became of it
+        "images": [{"name": f.name, "status": _image_status(f.name, stats)} for f in frames],
     }
     (out_dir / "report.json").write_text(json.dumps(_jsonable(report), indent=1, sort_keys=True) + "\n")
     ref_xyz = reference.cam_to_world[:, :3, 3] if reference is not None else None
