@@ -8,7 +8,8 @@ Artifact layout::
 
     transforms.json          nerfstudio convention (OpenGL camera axes), metric GT poses,
                              intrinsics, per-frame depth_file_path and timestamp
-    images/frame_00000.png   RGB, 8-bit sRGB-ish (the room's baked shading, no tone curve)
+    images/frame_00000.png   RGB, 8-bit sRGB-ish (the room's baked shading, no tone curve);
+                             .jpg with ``phone.jpeg_quality``
     depth/frame_00000.exr    float32 channel Z: z-depth in metres along the camera's +z axis
                              (NaN where undefined: fisheye pixels beyond 90 degrees)
     video.mp4                the frames as a video (mp4v), what `nsim reconstruct` reads
@@ -21,6 +22,15 @@ With ``actor: true`` (``nsim capture synth --actor``) a person walks through the
 handheld camera follows it instead (``nsim.synth.actor_capture``; ``low_pass_height_m`` unused);
 the artifact also holds ``masks/`` (person mask, 0/255), ``background/`` (the views without the
 person) and ``poses.json`` (per-frame skeleton poses, docs/human_data.md); its depth includes the person.
+
+``phone`` (``nsim.synth.phone.PhoneConfig``; ``--preset phone`` turns it all on) makes the images
+look like a phone's: auto-exposure and white-balance drift, shot and read noise, motion blur,
+rolling shutter, vignetting, JPEG. Poses, trajectory and depth stay the exact ground truth of the
+camera at each frame's timestamp (mid-exposure of row 0), byte for byte those of the same capture
+without ``phone``; each frame in transforms.json also records its ``exposure_gain`` and
+``wb_gains_rgb``, and the top level the model (``nsim_phone``). While every phone setting is at its
+default, ``phone`` is left out of the action key and the manifest, so such captures keep the ids
+they had before the phone model existed.
 """
 
 from __future__ import annotations
@@ -32,9 +42,10 @@ from typing import Any
 
 import numpy as np
 
-from nsim.config import from_dict, param
+from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
 from nsim.progress import progress_bar
+from nsim.synth.phone import PhoneConfig
 from nsim.synth.room import ROOM_PRESETS
 
 STAGE = "capture"
@@ -61,6 +72,15 @@ class Config:
                                     "(adds masks/ and poses.json: training data for train-human)")
     actor_height_m: float = param(1.75, ge=0.5, le=2.5, help="the person's height (actor: true)")
     actor_speed_mps: float = param(1.2, ge=0.3, le=2.5, help="the person's walking speed (actor: true)")
+    phone: PhoneConfig = PhoneConfig()
+
+    def __post_init__(self) -> None:
+        frame_s = 1.0 / self.fps
+        for name in ("exposure_time_s", "readout_time_s"):
+            if getattr(self.phone, name) > frame_s:
+                raise ValueError(f"phone.{name}: expected <= 1 / fps = {frame_s:g} s, got {getattr(self.phone, name)}")
+        if self.actor and self.phone != PhoneConfig():
+            raise ValueError("phone: not supported with actor: true (leave every phone setting at its default)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,15 +126,24 @@ def actor_config(cfg: Config):
     )
 
 
+def recorded_config(cfg: Config) -> dict[str, Any]:
+    """``cfg`` as the action key and the manifest record it: without ``phone`` while it is all defaults."""
+    data = to_dict(cfg)
+    if cfg.phone == PhoneConfig():
+        del data["phone"]
+    return data
+
+
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
-    key = store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed)
+    record = recorded_config(cfg)
+    key = store.action_key(STAGE, VERSION, record, inputs.ids(), seed=ctx.seed)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(capture=hit.id, cache_hit=True)
     if cfg.actor:
         from nsim.synth.actor_capture import render_actor_capture
 
-        with store.publish(kind="capture", stage=STAGE, version=VERSION, key=key, config=cfg, seed=ctx.seed) as out:
+        with store.publish(kind="capture", stage=STAGE, version=VERSION, key=key, config=record, seed=ctx.seed) as out:
             result = render_actor_capture(out.dir, actor_config(cfg), seed=ctx.seed, show_progress=ctx.show_progress)
             out.summary.update({"room": cfg.room, "camera": cfg.camera, "frames": cfg.n_frames,
                                 "resolution": [cfg.width, cfg.height], "actor": True,
@@ -122,7 +151,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         return Outputs(capture=out.ref)
 
     from nsim.synth.oracle import RoomOracle
-    from nsim.synth.path import handheld_path, timestamps_s
+    from nsim.synth.path import handheld_path, handheld_path_at, timestamps_s
     from nsim.synth.room import make_room
 
     spec = make_room(cfg.room, cfg.room_seed)
@@ -130,9 +159,17 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     cam_to_world = handheld_path(spec, cfg.n_frames, seed=ctx.seed, cfg=path_config(cfg))  # (N, 4, 4) OpenCV axes
     times_s = timestamps_s(cfg.n_frames, cfg.fps)
     oracle = RoomOracle(spec)
+    plan = None
+    if cfg.phone.any_effect:
+        from nsim.synth.phone import plan_frames
 
-    with store.publish(kind="capture", stage=STAGE, version=VERSION, key=key, config=cfg, seed=ctx.seed) as out:
-        write_capture(out.dir, cfg, spec, camera, cam_to_world, times_s, oracle, ctx.show_progress)
+        def pose_at(t_s: np.ndarray) -> np.ndarray:  # the path between frames: frame k at fraction k / n
+            return handheld_path_at(spec, t_s * cfg.fps / cfg.n_frames, seed=ctx.seed, cfg=path_config(cfg))
+
+        plan = plan_frames(cfg.phone, camera, times_s, cfg.fps, ctx.seed, pose_at)
+
+    with store.publish(kind="capture", stage=STAGE, version=VERSION, key=key, config=record, seed=ctx.seed) as out:
+        write_capture(out.dir, cfg, spec, camera, cam_to_world, times_s, oracle, ctx.show_progress, plan, ctx.seed)
         out.summary.update(
             {
                 "room": cfg.room,
@@ -153,14 +190,19 @@ def write_capture(
     times_s: np.ndarray,
     oracle: Any,
     show_progress: bool,
+    plan: Any = None,
+    seed: int = 0,
 ) -> None:
-    """Render every frame and write the capture's files into ``out_dir``."""
+    """Render every frame and write the capture's files into ``out_dir``; through the phone model
+    (``nsim.synth.phone``) when ``plan`` (a ``PhonePlan`` of ``cfg.phone``) is given."""
     import cv2
 
+    from nsim.io import atomic_path
     from nsim.io.exr import write_depth_exr
     from nsim.io.images import to_uint8, write_image
     from nsim.io.transforms_json import Frame, TransformsData, write_transforms
     from nsim.io.tum import Trajectory, write_tum
+    from nsim.synth import phone
     from nsim.synth.room import occupancy_polygons, room_diagonal_m
 
     (out_dir / "images").mkdir()
@@ -176,20 +218,31 @@ def write_capture(
             raise RuntimeError("OpenCV could not open an mp4v video writer")
     with progress_bar(len(cam_to_world), f"rendering {cfg.room}", show_progress) as bar:
         for i, c2w in enumerate(cam_to_world):
-            rgb, depth_z, _ = oracle.render_gt(camera, c2w, supersample=cfg.supersample)
+            extra = {}
+            if plan is None:
+                rgb, depth_z, _ = oracle.render_gt(camera, c2w, supersample=cfg.supersample)
+            else:
+                rgb, depth_z = phone.shoot(oracle, camera, plan, i, c2w, cfg.supersample, seed)
+                extra = phone.frame_metadata(plan, i)
             rgb_u8 = to_uint8(rgb)
             name = f"frame_{i:05d}"
-            write_image(out_dir / "images" / f"{name}.png", rgb_u8)
+            image_name = f"{name}.png" if cfg.phone.jpeg_quality is None else f"{name}.jpg"
+            if cfg.phone.jpeg_quality is None:
+                write_image(out_dir / "images" / image_name, rgb_u8)
+            else:  # the phone's own JPEG settings (write_image would use OpenCV's default quality)
+                with atomic_path(out_dir / "images" / image_name) as tmp:
+                    tmp.write_bytes(phone.encode_jpeg(rgb_u8, cfg.phone.jpeg_quality))
             write_depth_exr(out_dir / "depth" / f"{name}.exr", depth_z.astype(np.float32))
             if writer is not None:
                 writer.write(cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR))
             frames.append(
                 Frame(
-                    file_path=f"images/{name}.png",
+                    file_path=f"images/{image_name}",
                     cam_to_world=c2w,
                     camera=camera,
                     depth_file_path=f"depth/{name}.exr",
                     timestamp_s=float(times_s[i]),
+                    extra=extra,
                 )
             )
             if i % max(1, len(cam_to_world) // 8) == 0 and len(thumbs) < 8:
@@ -197,7 +250,10 @@ def write_capture(
             bar.advance()
     if writer is not None:
         writer.release()
-    write_transforms(out_dir / "transforms.json", TransformsData(frames=frames, extra={"nsim_capture": STAGE}))
+    top = {"nsim_capture": STAGE}
+    if plan is not None:
+        top["nsim_phone"] = phone.capture_metadata(cfg.phone)
+    write_transforms(out_dir / "transforms.json", TransformsData(frames=frames, extra=top))
     write_tum(out_dir / "gt_trajectory.tum", Trajectory.from_poses(times_s, cam_to_world))
     (out_dir / "room.json").write_text(
         json.dumps({"preset": cfg.room, "room_seed": cfg.room_seed, "spec": spec.to_dict()}, indent=1) + "\n"

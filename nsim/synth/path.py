@@ -91,6 +91,21 @@ def handheld_path(spec: RoomSpec, n_frames: int, seed: int = 0,
     """
     if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
         raise ValueError(f"handheld_path: n_frames must be an int >= 2, got {n_frames!r}")
+    return handheld_path_at(spec, np.arange(n_frames) / n_frames, seed, cfg)
+
+
+def handheld_path_at(spec: RoomSpec, capture_fraction: np.ndarray, seed: int = 0,
+                     cfg: HandheldPathConfig = DEFAULT_PATH) -> np.ndarray:
+    """``cam_to_world (M, 4, 4)`` of the handheld path at any capture fractions ``(M,)``.
+
+    Frame k of an n-frame capture at ``fps`` sits at ``k / n``, so time ``t_s`` sits at
+    ``t_s * fps / n``: this gives the camera between frames (motion blur, rolling shutter).
+    The path is smooth in the fraction; outside ``[0, 1]`` it goes on (the loop continues,
+    the height holds). ``handheld_path`` is this at ``arange(n) / n``. Errors as ``handheld_path``.
+    """
+    s = np.asarray(capture_fraction, dtype=np.float64)
+    if s.ndim != 1 or not np.all(np.isfinite(s)):
+        raise ValueError(f"handheld_path_at: capture_fraction must be a finite 1-D array, got shape {s.shape}")
     Z = spec.size_xyz_m[2]
     top = max(cfg.eye_height_m, cfg.low_height_m) + cfg.bob_amplitude_m
     bottom = min(cfg.eye_height_m, cfg.low_height_m) - cfg.bob_amplitude_m
@@ -101,7 +116,6 @@ def handheld_path(spec: RoomSpec, n_frames: int, seed: int = 0,
         )
     rng = np.random.default_rng([int(seed), 0x9A7])
     cx, cy, rx, ry = spec.walk_loop_xy_m
-    s = np.arange(n_frames) / n_frames  # capture fraction in [0, 1)
     angle = rng.uniform(0.0, 2.0 * np.pi) + 4.0 * np.pi * s  # two counter-clockwise loops
     on_loop = np.stack([cx + rx * np.cos(angle), cy + ry * np.sin(angle)], axis=-1)
 
@@ -110,6 +124,10 @@ def handheld_path(spec: RoomSpec, n_frames: int, seed: int = 0,
     seg = np.hypot(np.diff(rx * np.cos(fine)), np.diff(ry * np.sin(fine)))
     arc_fine = np.concatenate([[0.0], np.cumsum(seg)])
     walked_m = np.interp(4.0 * np.pi * s, fine, arc_fine)
+    if (beyond := (s < 0.0) | (s > 1.0)).any():  # whole loops (of arc_fine[2048] m) plus the part of one
+        turns = np.floor(2.0 * s[beyond])
+        walked_m[beyond] = turns * arc_fine[2048] + np.interp(4.0 * np.pi * s[beyond] - 2.0 * np.pi * turns,
+                                                              fine[:2049], arc_fine[:2049])
     step_phase = 2.0 * np.pi * walked_m / cfg.step_length_m
 
     crouch = _smoothstep((s - (0.5 - cfg.crouch_fraction / 2)) / max(cfg.crouch_fraction, 1e-9))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nsim.geometry.transforms import is_rotation, rotation_angle_deg
-from nsim.synth.path import MIN_CLEARANCE_M, HandheldPathConfig, handheld_path, timestamps_s
+from nsim.synth.path import MIN_CLEARANCE_M, HandheldPathConfig, handheld_path, handheld_path_at, timestamps_s
 from nsim.synth.room import ROOM_PRESETS, make_room
 from tests.synth.simple_room import simple_spec
 
@@ -67,6 +67,28 @@ def test_looks_inwards_and_level(paths):
             np.linalg.norm(forward[:, :2], axis=1) * np.linalg.norm(to_centre, axis=1))
         assert np.degrees(np.arccos(np.clip(cos_yaw, -1, 1))).max() < 12.0
         assert np.abs(poses[:, 2, 0]).max() < np.sin(np.radians(5))  # camera x stays nearly horizontal (roll)
+
+
+def test_path_between_frames(paths):
+    """``handheld_path_at`` is the path at any time: the frames at k / n, smooth in between and beyond."""
+    spec, poses = paths["kitchen"]
+    np.testing.assert_array_equal(handheld_path_at(spec, np.arange(N) / N, seed=0), poses)
+    k = 37
+    fine = handheld_path_at(spec, (k + np.linspace(0.0, 1.0, 11)) / N, seed=0)
+    np.testing.assert_allclose(fine[[0, -1]], poses[[k, k + 1]], atol=1e-12)
+    step = np.linalg.norm(np.diff(fine[:, :3, 3], axis=0), axis=1)
+    whole = np.linalg.norm(poses[k + 1, :3, 3] - poses[k, :3, 3])
+    assert step.max() < 0.2 * whole and step.sum() == pytest.approx(whole, rel=0.02)
+    assert rotation_angle_deg(fine[:-1, :3, :3], fine[1:, :3, :3]).max() < 0.2 * rotation_angle_deg(
+        poses[k, :3, :3], poses[k + 1, :3, :3]) + 1e-9
+    # before the first frame and after the last, the walk goes on smoothly (gait phase included)
+    for s0 in (0.0, 1.0):
+        eps = 1e-4
+        edge = handheld_path_at(spec, np.array([s0 - eps, s0, s0 + eps]), seed=0)
+        assert np.abs(edge[0] - edge[1]).max() < 1e-2 and np.abs(edge[2] - edge[1]).max() < 1e-2
+        np.testing.assert_allclose(edge[0] - edge[1], edge[1] - edge[2], atol=1e-5)
+    with pytest.raises(ValueError, match="capture_fraction"):
+        handheld_path_at(spec, np.array([0.0, np.nan]))
 
 
 def test_rejects_bad_requests():
