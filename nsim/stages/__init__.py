@@ -23,6 +23,7 @@ STAGE_MODULES: dict[str, str] = {
     "simulate": "nsim.stages.simulate",
     "render": "nsim.stages.render",
     "evaluate": "nsim.stages.evaluate",
+    "export": "nsim.stages.export",
 }
 
 
