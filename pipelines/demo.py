@@ -20,7 +20,16 @@ from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.stages import capture, evaluate, reconstruct, render, simulate, train_human, train_scene  # noqa: E402
+from nsim.stages import (  # noqa: E402
+    capture,
+    evaluate,
+    export,
+    reconstruct,
+    render,
+    simulate,
+    train_human,
+    train_scene,
+)
 from nsim.workspace.store import Store, default_root  # noqa: E402
 
 
@@ -62,6 +71,17 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     out = step("train-scene", lambda: train_scene.run(ts_inputs, ts_cfg, ctx))
     ctx.store.set_ref("scene/demo", out.scene)
     scene_id = out.scene
+
+    # What users take elsewhere: a coloured point cloud and mesh (PLY, GLB) in the scene's metric
+    # frame; the scene checkpoint itself carries the walkable map (free/occupied/unknown, nav2 map.yaml).
+    ex_cfg = load_config(export.Config, stage="export", preset=preset)
+    ex = step("export (mesh, point cloud)", lambda: export.run(export.Inputs(scene=scene_id), ex_cfg, ctx))
+    ctx.store.set_ref("export/demo", ex.export)
+    for rel in ("points.ply", "mesh.ply", "mesh.glb", "preview.png"):
+        print(f"[demo]   {ctx.store.get(ex.export).path / rel}", flush=True)
+    for rel in ("map.yaml", "map.pgm", "obstacle_cells.png"):
+        if (ctx.store.get(scene_id).path / rel).is_file():
+            print(f"[demo]   {ctx.store.get(scene_id).path / rel}", flush=True)
 
     repo = Path(__file__).resolve().parents[1]
     sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)

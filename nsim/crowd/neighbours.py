@@ -5,8 +5,9 @@ agents: each agent only meets the agents within ``cutoff_m`` (``neighbour_pairs`
 segments whose bounding box, grown by the grid's reach, touches its grid cell
 (``SegmentGrid.candidates``). Everything is 2D, in world metres on the floor plane (x, y).
 
-Obstacles are solid polygons ``(K, 2)`` (any orientation, implicitly closed); the crowd model
-only sees their boundary segments ``(M, 2, 2)`` as ``[[x0, y0], [x1, y1]]``.
+Obstacles are polygons ``(K, 2)`` (any orientation, implicitly closed), solid unless they have
+holes (rings of free space inside them, e.g. the room inside a ring of walls); the crowd model
+only sees their boundary segments ``(M, 2, 2)`` as ``[[x0, y0], [x1, y1]]``, hole boundaries included.
 """
 
 from __future__ import annotations
@@ -55,22 +56,39 @@ def segments_from_polygons(polygons: Sequence[np.ndarray]) -> np.ndarray:
     return out[np.any(out[:, 0] != out[:, 1], axis=1)]  # drop zero-length edges (repeated vertices)
 
 
-def points_in_polygons(points_m: np.ndarray, polygons: Sequence[np.ndarray]) -> np.ndarray:
-    """Which points lie strictly inside any polygon: ``(N,)`` bool (even-odd rule per polygon)."""
+def _in_ring(p: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """Even-odd test of points ``p (N, 2)`` against one closed ring ``(K >= 3, 2)``: ``(N,)`` bool."""
+    a, b = ring, np.roll(ring, -1, axis=0)
+    x, y = p[:, 0:1], p[:, 1:2]
+    crosses = (a[None, :, 1] > y) != (b[None, :, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1])
+    return (np.count_nonzero(crosses & (x < x_at), axis=1) % 2) == 1
+
+
+def points_in_polygons(
+    points_m: np.ndarray,
+    polygons: Sequence[np.ndarray],
+    holes: Sequence[Sequence[np.ndarray]] | None = None,
+) -> np.ndarray:
+    """Which points lie strictly inside any polygon and outside its holes: ``(N,)`` bool (even-odd rule per ring).
+
+    holes: for each polygon, its holes (rings of free space inside it); None: no holes.
+    """
     p = np.asarray(points_m, dtype=np.float64).reshape(-1, 2)
     inside_any = np.zeros(len(p), dtype=bool)
-    for poly in polygons:
+    if holes is not None and len(holes) != len(polygons):
+        raise ValueError(f"holes: expected one list per polygon ({len(polygons)}), got {len(holes)}")
+    for k, poly in enumerate(polygons):
         v = np.asarray(poly, dtype=np.float64)
         if len(v) < 3:
             continue
-        a, b = v, np.roll(v, -1, axis=0)
-        x, y = p[:, 0:1], p[:, 1:2]
-        crosses = (a[None, :, 1] > y) != (b[None, :, 1] > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_at = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (
-                b[None, :, 1] - a[None, :, 1]
-            )
-        inside_any |= (np.count_nonzero(crosses & (x < x_at), axis=1) % 2) == 1
+        inside = _in_ring(p, v)
+        for hole in holes[k] if holes is not None else ():
+            h = np.asarray(hole, dtype=np.float64)
+            if len(h) >= 3 and inside.any():
+                inside &= ~_in_ring(p, h)
+        inside_any |= inside
     return inside_any
 
 

@@ -18,7 +18,10 @@ scenario in the run cache; loading the canonical content again gives the same co
 Scene (the 2D obstacle map, world x/y metres on the floor z = 0)
     ``{"room": "robot-lab", "room_seed": 0}``: the test room's walls and furniture footprints
     (``nsim.synth.room.occupancy_polygons``). ``{"checkpoint": REF}``: a ``scene-checkpoint``
-    artifact's ``occupancy.json``, laid out as the capture's (``{"polygons": [[[x, y], ...], ...]}``).
+    artifact's ``occupancy.json``, laid out as the capture's (``{"polygons": [[[x, y], ...], ...]}``)
+    plus, optionally, ``"holes"``: one list per polygon of rings of free space inside it (a ring of
+    walls around a walkable room is a polygon whose hole is the room). Hole boundaries are walls
+    too; a point inside a hole is not inside the obstacle.
 Robot (body frame: x forward, y left, z up; ``RobotSpec``)
     ``poses`` (timed body-to-world poses), ``waypoints_m`` + ``speed_mps`` (+ ``loop``), ``tum``
     (a TUM file, path relative to the scenario file) or ``walk_loop`` (the test room's ellipse).
@@ -467,6 +470,7 @@ class Scenario:
     scene: Mapping[str, Any]
     scene_id: str | None
     obstacles_m: tuple[np.ndarray, ...]
+    obstacle_holes_m: tuple[tuple[np.ndarray, ...], ...]
     robot: RobotSpec
     humans: tuple[HumanSpec, ...]
 
@@ -476,8 +480,12 @@ class Scenario:
 
     @property
     def walls_m(self) -> np.ndarray:
-        """Obstacle boundary segments ``(M, 2, 2)``."""
-        return segments_from_polygons(self.obstacles_m)
+        """Obstacle boundary segments ``(M, 2, 2)``: the outlines, then the holes' outlines."""
+        return segments_from_polygons(self.obstacles_m + tuple(h for holes in self.obstacle_holes_m for h in holes))
+
+    def in_obstacle(self, points_m: np.ndarray) -> np.ndarray:
+        """Which points ``(P, 2)`` lie inside an obstacle (not in one of its holes): ``(P,)`` bool."""
+        return points_in_polygons(points_m, self.obstacles_m, self.obstacle_holes_m)
 
     def scene_label(self) -> str:
         if self.scene_id is not None:
@@ -516,7 +524,7 @@ def scenario_from_data(data: Any, *, source: str, base_dir: Path | None = None, 
         raise fail(exc.path, exc.message) from None
     d.pop("$schema", None)
 
-    scene, scene_id, polygons = _resolve_scene(d["scene"], store, fail)
+    scene, scene_id, polygons, holes = _resolve_scene(d["scene"], store, fail)
     d["scene"] = scene
     _resolve_robot(d, base_dir, fail)
     humans = _resolve_humans(d, fail)
@@ -533,6 +541,7 @@ def scenario_from_data(data: Any, *, source: str, base_dir: Path | None = None, 
         scene=scene,
         scene_id=scene_id,
         obstacles_m=tuple(polygons),
+        obstacle_holes_m=tuple(tuple(h) for h in holes),
         robot=robot,
         humans=humans,
     )
@@ -540,12 +549,13 @@ def scenario_from_data(data: Any, *, source: str, base_dir: Path | None = None, 
     return sc
 
 
-def _resolve_scene(scene: dict, store, fail) -> tuple[dict, str | None, list[np.ndarray]]:
+def _resolve_scene(scene: dict, store, fail) -> tuple[dict, str | None, list[np.ndarray], list[list[np.ndarray]]]:
     if "room" in scene:
         from nsim.synth.room import make_room, occupancy_polygons
 
         spec = make_room(scene["room"], scene["room_seed"])
-        return scene, None, occupancy_polygons(spec)
+        polygons = occupancy_polygons(spec)
+        return scene, None, polygons, [[] for _ in polygons]
     ref = scene["checkpoint"]
     if store is None:
         raise fail("scene.checkpoint", "a scene checkpoint needs a workspace to resolve it")
@@ -554,23 +564,34 @@ def _resolve_scene(scene: dict, store, fail) -> tuple[dict, str | None, list[np.
     except NsimError as exc:
         raise fail("scene.checkpoint", str(exc)) from None
     occ = store.get(art_id).path / "occupancy.json"
-    return {"checkpoint": art_id}, art_id, read_occupancy(occ, f"scene.checkpoint {ref!r}", fail)
+    return {"checkpoint": art_id}, art_id, *read_occupancy(occ, f"scene.checkpoint {ref!r}", fail)
 
 
-def read_occupancy(path: Path, where: str, fail) -> list[np.ndarray]:
-    """Polygons from an ``occupancy.json`` (the capture's layout: ``{"polygons": [[[x, y], ...]]}``)."""
+def read_occupancy(path: Path, where: str, fail) -> tuple[list[np.ndarray], list[list[np.ndarray]]]:
+    """Polygons and, per polygon, its holes from an ``occupancy.json``.
+
+    The capture's layout ``{"polygons": [[[x, y], ...], ...]}``, optionally with ``"holes": [[ring,
+    ...], ...]`` (one list per polygon; ``nsim.rendering.occupancy.ObstacleMap.occupancy_doc``).
+    """
     if not path.is_file():
         raise fail(where, f"the artifact has no occupancy.json ({path}): it cannot give an obstacle map")
     try:
         occ = json.loads(path.read_text())
-        raw = occ["polygons"]
-        polygons = [np.asarray(p, dtype=np.float64) for p in raw]
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        polygons = [np.asarray(p, dtype=np.float64) for p in occ["polygons"]]
+        raw_holes = occ.get("holes", [[] for _ in polygons])
+        holes = [[np.asarray(h, dtype=np.float64) for h in hs] for hs in raw_holes]
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise fail(where, f"{path}: malformed occupancy.json ({exc.__class__.__name__}: {exc})") from None
     for k, p in enumerate(polygons):
         if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2 or not np.all(np.isfinite(p)):
             raise fail(where, f"{path}: polygons[{k}]: expected finite [[x, y], ...] with at least 2 points")
-    return polygons
+    if len(holes) != len(polygons):
+        raise fail(where, f"{path}: holes: expected one list per polygon ({len(polygons)}), got {len(holes)}")
+    for k, hs in enumerate(holes):
+        for j, h in enumerate(hs):
+            if h.ndim != 2 or h.shape[1] != 2 or len(h) < 3 or not np.all(np.isfinite(h)):
+                raise fail(where, f"{path}: holes[{k}][{j}]: expected finite [[x, y], ...] with at least 3 points")
+    return polygons, holes
 
 
 def _resolve_robot(d: dict, base_dir: Path | None, fail) -> None:
@@ -841,12 +862,11 @@ def leg_crossings(start_m: np.ndarray, waypoints_m: np.ndarray, loop: bool, wall
 
 def _check_free_space(sc: Scenario, fail) -> None:
     walls = sc.walls_m
-    polygons = sc.obstacles_m
     if not sc.humans:
         return
     starts = np.array([h.start_m for h in sc.humans])
     radius = np.array([h.radius_m for h in sc.humans])
-    inside = points_in_polygons(starts, polygons)
+    inside = sc.in_obstacle(starts)
     outside = ~enclosed(starts, walls)
     clear = clearance_m(starts, walls)
     for k, h in enumerate(sc.humans):
@@ -860,7 +880,7 @@ def _check_free_space(sc: Scenario, fail) -> None:
                 ("humans", k, "start_m"),
                 f"{xy} is {clear[k]:.2f} m from an obstacle, less than the body radius {h.radius_m:g} m",
             )
-        w_inside = points_in_polygons(h.waypoints_m, polygons)
+        w_inside = sc.in_obstacle(h.waypoints_m)
         w_outside = ~enclosed(h.waypoints_m, walls)
         for j in range(len(h.waypoints_m)):
             if w_inside[j] or w_outside[j]:
@@ -1005,7 +1025,7 @@ def spawn_extra_humans(
     radius = 0.25
     lo, hi = walls.reshape(-1, 2).min(axis=0), walls.reshape(-1, 2).max(axis=0)
     cand = rng.uniform(lo, hi, size=(max(4096, 40 * count), 2))
-    ok = ~points_in_polygons(cand, sc.obstacles_m) & enclosed(cand, walls)
+    ok = ~sc.in_obstacle(cand) & enclosed(cand, walls)
     cand = cand[ok]
     cand = cand[clearance_m(cand, walls) >= radius + 0.15]
     if len(cand) < 2:

@@ -218,18 +218,15 @@ def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg: Confi
         json.dumps(metrics, indent=1, sort_keys=True, allow_nan=False) + "\n"
     )
     (out_dir / "scenario.json").write_text(json.dumps(sc.data, indent=1, sort_keys=True) + "\n")
-    (out_dir / "occupancy.json").write_text(
-        json.dumps(
-            {
-                "units": "m",
-                "frame": "world, z up; polygons in the xy plane",
-                "scene": sc.scene_label(),
-                "polygons": [np.asarray(p, dtype=float).round(6).tolist() for p in sc.obstacles_m],
-            },
-            indent=1,
-        )
-        + "\n"
-    )
+    occupancy = {
+        "units": "m",
+        "frame": "world, z up; polygons in the xy plane",
+        "scene": sc.scene_label(),
+        "polygons": [np.asarray(p, dtype=float).round(6).tolist() for p in sc.obstacles_m],
+    }
+    if any(sc.obstacle_holes_m):  # a scene checkpoint's map: free rooms inside rings of walls
+        occupancy["holes"] = [[np.asarray(h, dtype=float).round(6).tolist() for h in hs] for hs in sc.obstacle_holes_m]
+    (out_dir / "occupancy.json").write_text(json.dumps(occupancy, indent=1) + "\n")
     write_topdown(out_dir / "topdown.png", sc, sim, metrics)
     if cfg.video:
         write_video(out_dir / "run.mp4", sc, sim, cfg)
@@ -271,9 +268,12 @@ def write_topdown(path: Path, sc, sim, metrics: dict[str, Any]) -> None:
     lo, hi = _map_bounds(sc, sim)
     size = hi - lo
     fig, ax = plt.subplots(figsize=(8.0, max(3.0, 8.0 * size[1] / size[0]) + 0.6), dpi=80)
-    for poly in sc.obstacles_m:
+    for poly, holes in zip(sc.obstacles_m, sc.obstacle_holes_m, strict=True):
         p = np.asarray(poly)
         ax.fill(p[:, 0], p[:, 1], color="0.75", lw=0)
+        for h in holes:
+            h = np.asarray(h)
+            ax.fill(h[:, 0], h[:, 1], color="white", lw=0)
     robot_xy = sim.robot_pose_se3[:, :2, 3]
     ax.plot(
         robot_xy[:, 0], robot_xy[:, 1], "--", color=ROBOT_COLOUR, lw=1.2, label=f"robot ({sc.robot.name})"
@@ -339,8 +339,9 @@ def write_video(path: Path, sc, sim, cfg: Config) -> None:
         return np.round(np.stack([u, v], axis=-1) * sub).astype(np.int32)
 
     background = np.full((height, width, 3), 255, np.uint8)
-    for poly in sc.obstacles_m:
-        cv2.fillPoly(background, [px(poly)], (190, 190, 190), cv2.LINE_AA, shift)
+    for poly, holes in zip(sc.obstacles_m, sc.obstacle_holes_m, strict=True):
+        # one call with the holes: cv2 fills by the even-odd rule, so a hole stays white
+        cv2.fillPoly(background, [px(poly), *[px(h) for h in holes]], (190, 190, 190), cv2.LINE_AA, shift)
     stride = max(1, int(round(1.0 / (cfg.fps * sim.dt_s))))
     fps = 1.0 / (stride * sim.dt_s)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))

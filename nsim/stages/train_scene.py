@@ -8,12 +8,20 @@ Artifact layout (see ``nsim.train.scene.export_scene``)::
 
     model.pt, scene.json       weights + everything that rebuilds the model (configs, scene box,
                                hash backend, which images trained); ``nsim.rendering.load_model``
-    bounds.json                the scene box (world metres, z up), near / far
+    bounds.json                the scene box (world metres, z up; ``"metric": false`` and no metres when
+                               the poses' scale is arbitrary), near / far
     occupancy_grid.npy/.json   3D occupancy baked from the density (empty-space skipping)
     obstacles.png/.json        2D obstacle map and polygons in a height band (the simulator's map)
     curves.png, history.json   training loss / PSNR against steps
-    eval/frame_NNNNN.png       held-out renders beside ground truth; eval.json their PSNR / SSIM /
-                               depth AbsRel (median and normalised expected depth)
+    eval/frame_NNNNN.png       held-out renders beside ground truth at ``eval.image_side``; eval.json
+                               their PSNR / SSIM / LPIPS (mean appearance embedding), the left-half
+                               embedding fit's right-half scores, depth AbsRel, the scored resolution
+
+Training runs on copies of the images shrunk to ``data.max_image_side`` (intrinsics scaled
+exactly); held-out scoring renders at ``eval.image_side`` (0: as captured), chunk by chunk.
+Poses of arbitrary scale (``report.json`` / ``transforms.json`` say so): the config's metre
+lengths are scaled to the scene's size (``nsim.train.scene_data.units_per_metre``) and scene.json
+and bounds.json say ``"metric": false``.
 
 Resume: checkpoints go to ``<workspace>/tmp/train_scene.<key>.resume/last.pt`` every
 ``output.checkpoint_every`` steps. A run that is killed and started again with the same
@@ -38,7 +46,9 @@ from nsim.errors import InputError
 from nsim.train.scene import TrainSceneConfig
 
 STAGE = "train_scene"
-VERSION = 2  # 2: scene.json keeps the training images' mean colour (image_mean_rgb, for nsim render's fill)
+# 2: scene.json keeps the training images' mean colour (image_mean_rgb, for nsim render's fill);
+# 3: shrunk training images, scoring at eval.image_side with LPIPS and the half-image protocol, scale record
+VERSION = 3
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +103,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(scene=hit.id, cache_hit=True)
 
-    data = SceneData.load(src.path)
+    data = SceneData.load(src.path, max_image_side=cfg.data.max_image_side, scale=cfg.data.scale)
     device = ctx.device
     work = resume_dir(ctx, key)
     result = train_scene(data, cfg, work, device=device, seed=ctx.seed, progress=ctx.show_progress, on_log=on_log)
@@ -114,7 +124,9 @@ def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind:
             "frames": data.n_frames,
             "train_frames": int(len(result.trainer.train_ids)),
             "eval_frames": int(len(result.trainer.eval_ids)),
-            "image_size": [int(data.size_hw[1]), int(data.size_hw[0])],
+            "image_size": [int(data.full_size_hw[1]), int(data.full_size_hw[0])],
+            "train_image_size": [int(result.trainer.data.size_hw[1]), int(result.trainer.data.size_hw[0])],
+            "metric": bool(data.metric),
             "device": device_kind(str(result.trainer.device)),
             "hash_backend": result.trainer.backend,
             **summary,

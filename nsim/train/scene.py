@@ -13,9 +13,16 @@ function of ``k``, and a checkpoint holds the step, the weights, the optimiser's
 the grad scaler. So a run killed at any point and resumed from its last checkpoint ends with
 the same weights, bit for bit on CPU, as a run that was never interrupted.
 
+Data (``nsim.train.scene_data``): uint8 images at the training resolution (``data.max_image_side``),
+rays drawn per batch. Held-out scoring (``nsim.train.scene_eval``): chunked renders into compact
+arrays at ``eval.image_side``, and for appearance-embedded models the left-half embedding fit.
+Scale: for poses of arbitrary scale the trainer's metre lengths become scene units
+(:func:`in_scene_units`, ``nsim.train.scene_data.units_per_metre``) and the artifact says
+``"metric": false``.
+
 Core API (what ``nsim/stages/train_scene.py`` calls)::
 
-    data = SceneData.load(poses_dir)                      # transforms.json + images (+ depth, points)
+    data = SceneData.load(poses_dir, max_image_side=cfg.data.max_image_side)  # transforms.json + images
     result = train_scene(data, cfg, work_dir, device=ctx.device, seed=ctx.seed,
                          progress=ctx.show_progress)      # resumes from work_dir/last.pt
     summary = export_scene(out.dir, result)               # the artifact's files; returns a summary
@@ -35,7 +42,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,17 +53,34 @@ from torch import Tensor
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
+from nsim.metrics.image import psnr, ssim
 from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
 from nsim.train import checkpoint
 from nsim.train.checkpoint import CHECKPOINT_NAME
+from nsim.train.scene_data import (
+    BOUNDS_MODES,
+    POINT_FILES,
+    DataConfig,
+    SceneData,
+    scene_bounds,
+    units_per_metre,
+)
+from nsim.train.scene_eval import (
+    EvalConfig,
+    ViewRays,
+    abs_rel,
+    mean_scores,
+    protocol,
+    render_image,
+    score_view,
+)
 
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = 1
-POINT_FILES = ("sparse_points.ply", "points3D.ply")
-BOUNDS_MODES = ("auto", "cameras", "points", "fixed")
+DIRS_TABLE_MAX_BYTES = 256 << 20  # per-camera pixel-direction tables above this: directions per batch instead
 
 
 # ====================================================================== configuration
@@ -126,18 +150,6 @@ class LossConfig:
 
 
 @dataclass(frozen=True)
-class DataConfig:
-    """Split and scene box. bounds: ``cameras`` (camera centres' box + margin), ``points``
-    (sparse points' 1-99 % box + margin), ``fixed`` (``aabb_*_m``), ``auto`` (points if any, else cameras)."""
-
-    holdout_every: int = param(8, ge=0, help="hold out frame i when i % holdout_every == 0 (0: none)")
-    bounds: str = param("auto", choices=BOUNDS_MODES)
-    bounds_margin_m: float = param(2.0, ge=0.0)
-    aabb_min_m: tuple[float, float, float] | None = None
-    aabb_max_m: tuple[float, float, float] | None = None
-
-
-@dataclass(frozen=True)
 class OutputConfig:
     """Logging, checkpoints, evaluation and the baked occupancy grid / obstacle map."""
 
@@ -156,6 +168,8 @@ class OutputConfig:
     obstacle_density: float = param(0.05, gt=0.0, help="density (1/m) above which a cell of the 2D obstacle map "
                                     "is an obstacle (the simulator's walls: haze must not count)")
     render_chunk_rays: int = param(8192, ge=1)
+    occupancy_max_cells: int = param(1 << 23, ge=1, help="the 3D grid's cells at most (its cells grow to fit): "
+                                     "bounds the bake's memory (~60 B a cell) and time for a large box")
 
 
 @dataclass(frozen=True)
@@ -166,120 +180,31 @@ class TrainSceneConfig:
     loss: LossConfig = LossConfig()
     data: DataConfig = DataConfig()
     output: OutputConfig = OutputConfig()
+    eval: EvalConfig = EvalConfig()
 
 
-# ====================================================================== data
-@dataclass(eq=False)
-class SceneData:
-    """Frames of one capture, in memory.
-
-    images: (N, H, W, 3) uint8; cam_to_world: (N, 4, 4) float64 OpenCV axes; cameras: the
-    distinct intrinsics, camera_index: (N,) which one each frame uses (all the same size);
-    depth_paths: per frame the z-depth EXR or None; points_xyz: (P, 3) sparse points or None.
-    """
-
-    root: Path
-    names: list[str]
-    images: np.ndarray
-    cam_to_world: np.ndarray
-    cameras: list[Any]
-    camera_index: np.ndarray
-    depth_paths: list[Path | None]
-    points_xyz: np.ndarray | None = None
-    digest: str = ""
-
-    @classmethod
-    def load(cls, root: str | os.PathLike, points_file: str | None = None) -> SceneData:
-        """Read ``root/transforms.json`` and its images; InputError names the file on problems."""
-        from nsim.io.images import read_image
-        from nsim.io.transforms_json import read_transforms
-
-        root = Path(root)
-        data = read_transforms(root / "transforms.json")
-        if not data.frames:
-            raise InputError(f"{root / 'transforms.json'}: frames: no frames")
-        cameras, camera_index, images, names, depth_paths = [], [], [], [], []
-        size = (data.frames[0].camera.width, data.frames[0].camera.height)
-        h = hashlib.sha256()
-        for i, frame in enumerate(data.frames):
-            cam = frame.camera
-            if (cam.width, cam.height) != size:
-                raise InputError(f"{root / 'transforms.json'}: frames[{i}]: image size {cam.width}x{cam.height} "
-                                 f"differs from frames[0] ({size[0]}x{size[1]}); mixed sizes are not supported")
-            if cam not in cameras:
-                cameras.append(cam)
-            camera_index.append(cameras.index(cam))
-            img = read_image(root / frame.file_path)
-            if img.shape[:2] != (cam.height, cam.width):
-                raise InputError(f"{root / frame.file_path}: image is {img.shape[1]}x{img.shape[0]}, "
-                                 f"transforms.json says {cam.width}x{cam.height}")
-            images.append(img)
-            names.append(frame.file_path)
-            depth_paths.append(root / frame.depth_file_path if frame.depth_file_path else None)
-            h.update(img.tobytes())
-            h.update(np.ascontiguousarray(frame.cam_to_world).tobytes())
-            h.update(json.dumps(cam.to_dict(), sort_keys=True).encode())
-        points = None
-        candidates = [points_file] if points_file else list(POINT_FILES)
-        for name in candidates:
-            if (root / name).is_file():
-                from nsim.io.ply import read_ply
-
-                points = np.asarray(read_ply(root / name).xyz, dtype=np.float64)
-                h.update(points.tobytes())
-                break
-        return cls(root, names, np.stack(images), np.stack([f.cam_to_world for f in data.frames]), cameras,
-                   np.asarray(camera_index), depth_paths, points, h.hexdigest())
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.names)
-
-    @property
-    def size_hw(self) -> tuple[int, int]:
-        return self.images.shape[1], self.images.shape[2]
-
-    def split(self, holdout_every: int) -> tuple[np.ndarray, np.ndarray]:
-        """(train indices, held-out indices): frame i is held out when ``i % holdout_every == 0``."""
-        idx = np.arange(self.n_frames)
-        if holdout_every <= 0:
-            return idx, idx[:0]
-        held = idx % holdout_every == 0
-        if held.all():
-            raise InputError(f"{self.root}: holding out every {holdout_every}th frame leaves no training frames")
-        return idx[~held], idx[held]
-
-    def read_depth_z(self, i: int) -> np.ndarray | None:
-        """Ground-truth z-depth (H, W) of frame i, or None when the frame has none."""
-        if self.depth_paths[i] is None:
-            return None
-        from nsim.io.exr import read_depth_exr
-
-        return read_depth_exr(self.depth_paths[i])
-
-
-def scene_bounds(data: SceneData, cfg: DataConfig) -> np.ndarray:
-    """The scene box ``(2, 3)`` in world metres (see :class:`DataConfig`)."""
-    mode = cfg.bounds
-    if mode == "auto":
-        mode = "points" if data.points_xyz is not None and len(data.points_xyz) >= 8 else "cameras"
-    if mode == "fixed":
-        if cfg.aabb_min_m is None or cfg.aabb_max_m is None:
-            raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
-        lo, hi = np.asarray(cfg.aabb_min_m, float), np.asarray(cfg.aabb_max_m, float)
-    elif mode == "points":
-        if data.points_xyz is None or len(data.points_xyz) < 8:
-            raise InputError(f"{data.root}: data.bounds is 'points' but there is no sparse point cloud ({', '.join(POINT_FILES)})")
-        lo, hi = np.percentile(data.points_xyz, 1, axis=0), np.percentile(data.points_xyz, 99, axis=0)
-        centres = data.cam_to_world[:, :3, 3]
-        lo, hi = np.minimum(lo, centres.min(0)), np.maximum(hi, centres.max(0))
-        lo, hi = lo - cfg.bounds_margin_m, hi + cfg.bounds_margin_m
-    else:
-        centres = data.cam_to_world[:, :3, 3]
-        lo, hi = centres.min(0) - cfg.bounds_margin_m, centres.max(0) + cfg.bounds_margin_m
-    if not np.all(hi - lo > 1e-3):
-        raise InputError(f"data.bounds: degenerate scene box {lo.tolist()} .. {hi.tolist()}; set data.bounds_margin_m > 0")
-    return np.stack([lo, hi]).astype(np.float32)
+def in_scene_units(cfg: TrainSceneConfig, units_per_m: float) -> TrainSceneConfig:
+    """``cfg`` with every length in metres multiplied by ``units_per_m`` and every density (1/m)
+    divided by it, so that a scene of arbitrary scale gets the near plane, box margin, cells and
+    bands a metric one would (the initial density too: ``field.density_bias`` shifts by ``-ln s``).
+    A fixed box (``data.aabb_*_m``) is taken to be in the poses' own units already. ``cfg`` itself
+    when ``units_per_m`` is 1."""
+    s = float(units_per_m)
+    if s == 1.0:
+        return cfg
+    sm, lo, out = cfg.sampler, cfg.loss, cfg.output
+    return replace(
+        cfg,
+        field=replace(cfg.field, density_bias=cfg.field.density_bias - math.log(s)),
+        sampler=replace(sm, near_m=sm.near_m * s, far_m=sm.far_m * s, lindisp_break_m=sm.lindisp_break_m * s,
+                        grid_cell_m=sm.grid_cell_m * s, grid_step_m=sm.grid_step_m * s,
+                        grid_density_threshold=sm.grid_density_threshold / s),
+        loss=replace(lo, free_space_margin_m=lo.free_space_margin_m * s),
+        data=replace(cfg.data, bounds_margin_m=cfg.data.bounds_margin_m * s),
+        output=replace(out, occupancy_cell_m=out.occupancy_cell_m * s, occupancy_density=out.occupancy_density / s,
+                       obstacle_band_m=(out.obstacle_band_m[0] * s, out.obstacle_band_m[1] * s),
+                       obstacle_cell_m=out.obstacle_cell_m * s, obstacle_density=out.obstacle_density / s),
+    )
 
 
 def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
@@ -311,9 +236,17 @@ class SceneTrainer:
     """One training run's state: model, optimiser, step; ``train_step`` advances it by one.
 
     Everything random in step ``k`` is drawn from generators seeded with ``(seed, k)``.
+
+    ``data`` is brought to ``cfg.data.max_image_side`` (read again from its files when it is not
+    already there). ``cfg`` is kept as given in ``given_cfg``; ``self.cfg`` is it in scene units
+    (:func:`in_scene_units`, ``units_per_m``: 1 for metric poses).
     """
 
     def __init__(self, data: SceneData, cfg: TrainSceneConfig, device: str = "cpu", seed: int = 0) -> None:
+        data = data.with_max_image_side(cfg.data.max_image_side)
+        self.given_cfg = cfg
+        self.units_per_m, self.units_from = units_per_metre(data)
+        cfg = in_scene_units(cfg, self.units_per_m)
         self.data, self.cfg, self.device, self.seed = data, cfg, torch.device(device), int(seed)
         if cfg.optim.num_threads > 0 and self.device.type == "cpu":
             torch.set_num_threads(cfg.optim.num_threads)
@@ -335,7 +268,11 @@ class SceneTrainer:
         self.pose_refine = PoseRefinement(data.n_frames).to(self.device) if cfg.optim.pose_refinement else None
         # data on the device: uint8 images, per-camera pixel directions, poses
         self.images = torch.as_tensor(data.images).to(self.device)
-        self.dirs_cam = torch.stack([camera_dirs(c) for c in data.cameras]).to(self.device)  # (C, H, W, 3)
+        # pixel directions: a (C, H, W, 3) table when the distinct cameras are few, else unprojected per batch
+        h, w = data.size_hw
+        self.dirs_cam = None
+        if len(data.cameras) * h * w * 12 <= DIRS_TABLE_MAX_BYTES:
+            self.dirs_cam = torch.stack([camera_dirs(c) for c in data.cameras]).to(self.device)
         self.camera_index = torch.as_tensor(data.camera_index, dtype=torch.long, device=self.device)
         self.cam_to_world = torch.as_tensor(data.cam_to_world, dtype=torch.float32, device=self.device)
         self.train_index = torch.as_tensor(self.train_ids, dtype=torch.long, device=self.device)
@@ -412,9 +349,24 @@ class SceneTrainer:
         img = self.train_index[pick]
         v, u = pix // w, pix % w
         target = self.images[img, v, u].float() / 255.0
-        dirs_cam = self.dirs_cam[self.camera_index[img], v, u]
+        dirs_cam = self._pixel_dirs(img, v, u)
         rays = self._rays(dirs_cam, img)
         return rays, target, g
+
+    def _pixel_dirs(self, img: Tensor, v: Tensor, u: Tensor) -> Tensor:
+        """Camera-axes unit directions ``(R, 3)`` through pixels ``(v, u)`` of images ``img`` (as ``camera_dirs``)."""
+        cam_idx = self.camera_index[img]
+        if self.dirs_cam is not None:
+            return self.dirs_cam[cam_idx, v, u]
+        out = torch.empty((len(img), 3), dtype=torch.float32)
+        uv = torch.stack([u, v], -1).cpu().double().numpy()
+        idx = cam_idx.cpu()
+        for c in torch.unique(idx).tolist():  # the same float64 arithmetic as the table, pixel by pixel
+            rows = torch.nonzero(idx == c, as_tuple=True)[0]
+            d = torch.as_tensor(np.asarray(self.data.cameras[c].unproject(uv[rows.numpy()])), dtype=torch.float32)
+            d[~torch.isfinite(d).all(-1)] = torch.tensor([0.0, 0.0, 1.0])
+            out[rows] = d
+        return out.to(self.device)
 
     def _rays(self, dirs_cam: Tensor, img: Tensor) -> Rays:
         c2w = self.cam_to_world[img]
@@ -505,14 +457,22 @@ class SceneTrainer:
         """The batch's parts for ``optim.batch_threads`` (CPU only; one part otherwise)."""
         k = self.cfg.optim.batch_threads if self.device.type == "cpu" else 1
         k = max(1, min(k, n))
+        if k > 1:
+            self._thread_pool()
+        edges = [round(i * n / k) for i in range(k + 1)]
+        return [slice(edges[i], edges[i + 1]) for i in range(k)]
+
+    def _thread_pool(self):
+        """The ``optim.batch_threads`` worker threads (CPU, more than one; else None), made on first use:
+        the parts of a training batch, and the chunks of an evaluation render, run there."""
+        k = self.cfg.optim.batch_threads if self.device.type == "cpu" else 1
         if k > 1 and self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
             threads = self.cfg.optim.num_threads
             self._pool = ThreadPoolExecutor(k, thread_name_prefix="nsim-part",
                                             initializer=(lambda: torch.set_num_threads(threads)) if threads > 0 else None)
-        edges = [round(i * n / k) for i in range(k + 1)]
-        return [slice(edges[i], edges[i + 1]) for i in range(k)]
+        return self._pool
 
     def _part_loss(self, step: int, rays: Rays, target: Tensor, g: torch.Generator, anneal: float,
                    update_proposals: bool, grid: bool, first: bool, share: float, extra: dict) -> tuple[Tensor, Tensor]:
@@ -633,71 +593,88 @@ class SceneTrainer:
         self.load_state_dict(checkpoint.load_checkpoint(path, map_location=self.device))
 
     # ------------------------------------------------------------------ rendering and evaluation
-    @torch.no_grad()
-    def render_view(self, i: int, chunk: int | None = None) -> dict[str, np.ndarray]:
-        """Render frame ``i`` (its recorded pose, mean appearance): rgb (H, W, 3), depth_z and
-        depth_median_z (H, W) z-depth in metres, accumulation (H, W)."""
-        self.model.eval()
-        chunk = chunk or self.cfg.output.render_chunk_rays
-        h, w = self.data.size_hw
-        dirs_cam = self.dirs_cam[self.camera_index[i]].reshape(-1, 3)
-        c2w = self.cam_to_world[i].expand(h * w, 4, 4)
-        origins, dirs = rays_from_pixels(dirs_cam, c2w)
-        s = self.cfg.sampler
-        rays = make_rays(origins, dirs, s.near_m, s.far_m, self.aabb.to(self.device) if s.clip_rays_to_box else None)
-        outs = [self.model.render(rays[k : k + chunk]) for k in range(0, h * w, chunk)]
-        z = dirs_cam[:, 2]
-        cat = {name: torch.cat([getattr(o, name) for o in outs]) for name in ("rgb", "depth", "depth_median", "accumulation")}
-        return {
-            "rgb": cat["rgb"].clamp(0, 1).view(h, w, 3).cpu().numpy(),
-            "depth_z": (cat["depth"] * z).view(h, w).cpu().numpy(),
-            "depth_median_z": (cat["depth_median"] * z).view(h, w).cpu().numpy(),
-            "accumulation": cat["accumulation"].view(h, w).cpu().numpy(),
-        }
+    def density_fn(self) -> Callable[[Tensor], Tensor]:
+        """The scene field's density ``x (N, 3) -> sigma (N,)`` (eval mode, no gradients) for baking grids.
+        On a CPU with ``optim.batch_threads`` > 1 each call's points are split in that many fixed parts
+        evaluated on the worker threads at once (the first call runs whole, so that anything compiled
+        on first use is built once); the parts depend only on N, so a rerun bakes the same grid."""
+        model = self.model.eval()
+        pool = self._thread_pool()
 
-    def evaluate(self, views: list[int] | None = None, keep_images: bool = False) -> dict[str, Any]:
-        """PSNR / SSIM / depth AbsRel on held-out frames (all, or ``views``)."""
+        def whole(x: Tensor) -> Tensor:
+            with torch.no_grad():  # per thread
+                return model.field.density(x)[0]
+
+        if pool is None:
+            return whole
+        k = self.cfg.optim.batch_threads
+        warm = [False]
+
+        def split(x: Tensor) -> Tensor:
+            if not warm[0] or len(x) < 2 * k:
+                warm[0] = True
+                return whole(x)
+            edges = [round(i * len(x) / k) for i in range(k + 1)]
+            parts = [pool.submit(whole, x[edges[i]:edges[i + 1]]) for i in range(k)]
+            return torch.cat([p.result() for p in parts])
+
+        return split
+
+    def view_rays(self, i: int, camera) -> ViewRays:
+        """What renders frame ``i`` (its recorded pose) through ``camera`` (any size)."""
+        s = self.cfg.sampler
+        return ViewRays(camera, self.cam_to_world[i].cpu(), s.near_m, s.far_m,
+                        self.aabb.to(self.device) if s.clip_rays_to_box else None)
+
+    @torch.no_grad()
+    def render_view(self, i: int, chunk: int | None = None, image_side: int | None = None) -> dict[str, np.ndarray]:
+        """Render frame ``i`` (its recorded pose, mean appearance) at ``image_side`` (default ``eval.image_side``):
+        rgb (H, W, 3), depth_z and depth_median_z (H, W) z-depth in scene units, accumulation (H, W); float32."""
+        side = self.cfg.eval.image_side if image_side is None else image_side
+        view = self.view_rays(i, self.data.eval_camera(i, side))
+        return render_image(self.model, view, chunk or self.cfg.output.render_chunk_rays, pool=self._thread_pool())
+
+    def evaluate(self, views: list[int] | None = None, final: bool = False, image_dir: Path | None = None) -> dict[str, Any]:
+        """Scores of held-out frames (all, or ``views``) at ``eval.image_side``: PSNR / SSIM / depth
+        AbsRel with the mean appearance embedding; ``final`` adds LPIPS and the left-half fit's
+        ``*_half`` scores (``nsim.train.scene_eval``). ``image_dir``: each render beside its ground
+        truth is written there (``frame_NNNNN.png``) as it is scored, so no image is kept.
+        Returns ``views`` (one row each), ``mean``, ``resolution`` and ``protocol``."""
+        from nsim.io.images import to_uint8, write_image
+
         views = list(self.eval_ids) if views is None else views
-        per_view = []
-        images = {}
+        ecfg = self.cfg.eval
+        rows = []
+        scored = None
         for i in views:
-            pred = self.render_view(i)
-            gt = self.data.images[i].astype(np.float32) / 255.0
-            row = {"frame": int(i), "name": self.data.names[i], **image_metrics(pred["rgb"], gt)}
-            gt_depth = self.data.read_depth_z(i)
-            if gt_depth is not None:
-                row["abs_rel_expected"] = abs_rel(pred["depth_z"], gt_depth)
-                row["abs_rel_median"] = abs_rel(pred["depth_median_z"], gt_depth)
-            per_view.append(row)
-            if keep_images:
-                images[int(i)] = pred
-        summary = {k: float(np.mean([r[k] for r in per_view])) for k in per_view[0] if k not in ("frame", "name")} if per_view else {}
-        return {"views": per_view, "mean": summary, "images": images}
+            camera = self.data.eval_camera(i, ecfg.image_side)
+            scored = [camera.width, camera.height]
+            gt = self.data.eval_image(i, camera)
+            save = None
+            if image_dir is not None:
+                def save(rgb, i=i, gt=gt):
+                    write_image(Path(image_dir) / f"frame_{i:05d}.png", np.concatenate([to_uint8(rgb), gt], axis=1))
+            g = torch.Generator().manual_seed(_step_seed(self.seed, int(i), "eval-fit"))
+            row = score_view(self.model, self.view_rays(i, camera), gt, self.data.eval_depth_z(i, camera),
+                             self.cfg.output.render_chunk_rays, ecfg, final, g, self._thread_pool(), save)
+            rows.append({"frame": int(i), "name": self.data.names[i], **row})
+        h, w = self.data.size_hw
+        fh, fw = self.data.full_size_hw
+        return {"views": rows, "mean": mean_scores(rows),
+                "resolution": {"scored_wh": scored, "trained_wh": [w, h], "captured_wh": [fw, fh],
+                               "eval.image_side": ecfg.image_side, "data.max_image_side": self.cfg.data.max_image_side},
+                "protocol": protocol(ecfg, "with a generator seeded by (seed, frame)")}
 
 
 # ====================================================================== metrics (image and depth)
-def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    mse = float(np.mean((np.asarray(pred, np.float64) - np.asarray(gt, np.float64)) ** 2))
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
 def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """PSNR (dB) and SSIM (scikit-image, Gaussian 7x7-ish window as in Wang et al.) of (H, W, 3) in [0, 1]."""
-    from skimage.metrics import structural_similarity
-
-    ssim = structural_similarity(gt, pred, channel_axis=-1, data_range=1.0, gaussian_weights=True, sigma=1.5,
-                                 use_sample_covariance=False)
-    return {"psnr": psnr(pred, gt), "ssim": float(ssim)}
-
-
-def abs_rel(pred_depth: np.ndarray, gt_depth: np.ndarray) -> float:
-    """Mean ``|pred - gt| / gt`` over pixels with finite, positive ground truth."""
-    valid = np.isfinite(gt_depth) & (gt_depth > 0) & np.isfinite(pred_depth)
-    return float(np.mean(np.abs(pred_depth[valid] - gt_depth[valid]) / gt_depth[valid]))
+    """PSNR (dB) and SSIM (``nsim.metrics.image``: 11x11 Gaussian window, as Wang et al.) of (H, W, 3) in [0, 1]."""
+    return {"psnr": psnr(pred, gt), "ssim": ssim(pred, gt)}
 
 
 def constant_color_psnr(data: SceneData, holdout_every: int) -> float:
-    """PSNR of the training images' mean colour on the held-out frames (the trivial baseline)."""
+    """PSNR of the training images' mean colour on the held-out frames (the trivial baseline), at the
+    training resolution."""
     train, held = data.split(holdout_every)
     mean = np.asarray(image_mean_rgb(data, train))
     return float(np.mean([psnr(np.broadcast_to(mean, data.images[i].shape), data.images[i] / 255.0) for i in held]))
@@ -782,27 +759,51 @@ def _spread(items: list[int], n: int) -> list[int]:
     return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
 
 
+def occupancy_cell(aabb, cell_m: float, max_cells: int) -> float:
+    """``cell_m``, or the smallest cell (1 % steps) above it whose grid over ``aabb (2, 3)`` has at most
+    ``max_cells`` cells."""
+    from nsim.rendering.occupancy import grid_shape
+
+    aabb = np.asarray(torch.as_tensor(aabb).cpu(), dtype=np.float64)
+    if math.prod(grid_shape(aabb, cell_m)) <= max_cells:
+        return cell_m
+    cell = max(cell_m, float(np.prod(aabb[1] - aabb[0]) / max_cells) ** (1.0 / 3.0))
+    while math.prod(grid_shape(aabb, cell)) > max_cells:
+        cell *= 1.01
+    log.warning("occupancy grid: cells of %.4g instead of %.4g (at most %d cells over the box)", cell, cell_m, max_cells)
+    return cell
+
+
 def bake_occupancy(trainer: SceneTrainer):
     """The 3D occupancy grid of the trained scene field (``output.occupancy_*``)."""
     from nsim.rendering.occupancy import OccupancyGrid
 
     out = trainer.cfg.output
-    model = trainer.model.eval()
     g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "occupancy"))
-    return OccupancyGrid.bake(lambda x: model.field.density(x)[0], trainer.aabb, out.occupancy_cell_m,
-                              out.occupancy_density, out.occupancy_samples_per_cell, dilate=1, generator=g,
-                              device=trainer.device)
+    cell = occupancy_cell(trainer.aabb, out.occupancy_cell_m, out.occupancy_max_cells)
+    return OccupancyGrid.bake(trainer.density_fn(), trainer.aabb, cell, out.occupancy_density,
+                              out.occupancy_samples_per_cell, dilate=1, generator=g, device=trainer.device)
 
 
+@torch.no_grad()
 def bake_obstacles(trainer: SceneTrainer):
-    """The 2D obstacle map at ``output.obstacle_band_m`` (world z, metres)."""
-    from nsim.rendering.occupancy import obstacle_map
+    """The 2D obstacle map at ``output.obstacle_band_m`` (world z, metres), with the cells the training
+    views observed (their poses as trained, pose refinement included; unobserved cells are unknown)."""
+    from nsim.rendering.occupancy import CameraViews, obstacle_map
 
     out = trainer.cfg.output
     model = trainer.model.eval()
     g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "obstacles"))
+    ids = np.asarray(trainer.train_ids, dtype=np.int64)
+    cam_to_world = trainer.data.cam_to_world[ids]
+    if trainer.pose_refine is not None:
+        idx = torch.as_tensor(ids, device=trainer.device)
+        cam_to_world = trainer.pose_refine(trainer.cam_to_world[idx], idx).double().cpu().numpy()
+    views = CameraViews(cam_to_world, tuple(trainer.data.cameras), trainer.data.camera_index[ids],
+                        trainer.cfg.sampler.near_m, trainer.cfg.sampler.far_m)
     return obstacle_map(lambda x: model.field.density(x)[0], trainer.aabb, out.obstacle_band_m, out.obstacle_cell_m,
-                        out.obstacle_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device)
+                        out.obstacle_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device,
+                        views=views)
 
 
 def plot_curves(path: Path, history: list[dict[str, float]]) -> None:
@@ -840,11 +841,13 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
     box, hash backend, training images), ``bounds.json``, ``occupancy_grid.npy`` + ``.json`` (3D grid),
     ``obstacles.png`` + ``obstacles.json`` (2D map and polygons at the height band),
     ``curves.png`` + ``history.json`` (against steps), ``eval/<frame>.png`` (render | ground
-    truth) and ``eval.json`` (per-view PSNR / SSIM / depth AbsRel). No file holds a timing, so a
-    rerun on CPU writes the same bytes (the artifact id repeats); the training seconds are in
-    ``result.trainer.train_seconds`` for the caller to report.
+    truth, at the scored size) and ``eval.json`` (per view: PSNR / SSIM / LPIPS with the mean
+    appearance embedding, the left-half fit's right-half ``*_half`` scores, depth AbsRel; which
+    resolution was scored; what each score is). ``scene.json`` and ``bounds.json`` say whether the
+    scene is metric (``"metric"``; ``"units": "arbitrary"`` otherwise, lengths in the poses' units).
+    No file holds a timing, so a rerun on CPU writes the same bytes (the artifact id repeats); the
+    training seconds are in ``result.trainer.train_seconds`` for the caller to report.
     """
-    from nsim.io.images import to_uint8, write_image
     from nsim.rendering.model import save_model
 
     trainer = result.trainer
@@ -858,42 +861,50 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
         "eval_images": [int(i) for i in trainer.eval_ids],
         "steps": trainer.step,
         "image_mean_rgb": image_mean_rgb(data, trainer.train_ids),
+        "image_size_trained": [int(data.size_hw[1]), int(data.size_hw[0])],
+        **scale_record(trainer),
     })
     aabb = trainer.aabb.tolist()
-    (out_dir / "bounds.json").write_text(json.dumps({"units": "m", "frame": "world, z up", "aabb_min_m": aabb[0],
-                                                     "aabb_max_m": aabb[1], "near_m": cfg.sampler.near_m,
-                                                     "far_m": cfg.sampler.far_m}, indent=1) + "\n")
+    if data.metric:
+        bounds = {"units": "m", "metric": True, "frame": "world, z up", "aabb_min_m": aabb[0], "aabb_max_m": aabb[1],
+                  "near_m": cfg.sampler.near_m, "far_m": cfg.sampler.far_m}
+    else:  # no metre anywhere: lengths in the poses' own units
+        bounds = {"units": "arbitrary", "metric": False, "frame": "world, z up (as the poses give it)",
+                  "aabb_min": aabb[0], "aabb_max": aabb[1], "near": cfg.sampler.near_m, "far": cfg.sampler.far_m,
+                  "units_per_m_guess": trainer.units_per_m}
+    (out_dir / "bounds.json").write_text(json.dumps(bounds, indent=1) + "\n")
     grid = bake_occupancy(trainer)
     grid.save(out_dir / "occupancy_grid.npy")
-    obstacles = bake_obstacles(trainer)
-    obstacles.to_png(out_dir / "obstacles.png")
-    obstacle_doc = json.dumps({
-        "units": "m",
-        "frame": "world, z up; polygons in the xy plane (counter-clockwise)",
-        "height_band_m": list(obstacles.band_m),
-        "cell_m": obstacles.cell_m,
-        "polygons": [np.round(p, 6).tolist() for p in obstacles.polygons()],
-    }, indent=1) + "\n"
-    (out_dir / "obstacles.json").write_text(obstacle_doc)
-    # the same map under the name the crowd simulator reads from any layout artifact (nsim simulate)
-    (out_dir / "occupancy.json").write_text(obstacle_doc)
+    if not data.metric:  # the grid's own JSON says metres; its box key stays for OccupancyGrid.load
+        meta = json.loads((out_dir / "occupancy_grid.json").read_text())
+        meta.update({"units": "arbitrary", "metric": False})
+        (out_dir / "occupancy_grid.json").write_text(json.dumps(meta, indent=1) + "\n")
+    # obstacles.json = occupancy.json (polygons with holes, read by nsim simulate), obstacles.png,
+    # obstacle_cells.npy / .png (free / occupied / unknown) and the nav2 map map.yaml + map.pgm
+    bake_obstacles(trainer).save(out_dir, units="m" if data.metric else "arbitrary")
     history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
     plot_curves(out_dir / "curves.png", history)
     (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
     views = _spread(list(trainer.eval_ids), cfg.output.final_eval_views)
     summary: dict[str, Any] = {"steps": trainer.step, "occupied_fraction": grid.occupied_fraction}
     if views:
-        ev = trainer.evaluate(views, keep_images=True)
         (out_dir / "eval").mkdir(exist_ok=True)
-        for i, pred in ev["images"].items():
-            gt = data.images[i]
-            write_image(out_dir / "eval" / f"frame_{i:05d}.png", np.concatenate([to_uint8(pred["rgb"]), gt], axis=1))
-        (out_dir / "eval.json").write_text(json.dumps({"views": ev["views"], "mean": ev["mean"],
-                                                       "constant_color_psnr": constant_color_psnr(data, cfg.data.holdout_every)},
-                                                      indent=1) + "\n")
+        ev = trainer.evaluate(views, final=True, image_dir=out_dir / "eval")
+        (out_dir / "eval.json").write_text(json.dumps({
+            "resolution": ev["resolution"], "protocol": ev["protocol"], "views": ev["views"], "mean": ev["mean"],
+            "constant_color_psnr": constant_color_psnr(data, cfg.data.holdout_every)}, indent=1) + "\n")
         summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
+        summary["eval_image_size"] = ev["resolution"]["scored_wh"]
     result.evaluation = summary
     return summary
+
+
+def scale_record(trainer: SceneTrainer) -> dict[str, Any]:
+    """What scene.json says about the scene's units (``metric``; for arbitrary scale, the guess that sized
+    the trainer's lengths: the config's metre values times ``units_per_m``)."""
+    data = trainer.data
+    return {"metric": bool(data.metric), "units": "m" if data.metric else "arbitrary",
+            "scale_source": data.scale_source, "units_per_m": trainer.units_per_m, "units_per_m_from": trainer.units_from}
 
 
 def config_json(cfg: TrainSceneConfig) -> str:
@@ -901,7 +912,10 @@ def config_json(cfg: TrainSceneConfig) -> str:
 
 
 __all__ = [
+    "BOUNDS_MODES",
+    "POINT_FILES",
     "DataConfig",
+    "EvalConfig",
     "LossConfig",
     "OptimConfig",
     "OutputConfig",
@@ -915,6 +929,8 @@ __all__ = [
     "export_scene",
     "constant_color_psnr",
     "image_metrics",
+    "in_scene_units",
+    "psnr",
     "scene_bounds",
     "train_scene",
 ]

@@ -110,9 +110,10 @@ def test_obstacle_map_and_polygons():
     ys = om.origin_xy_m[1] + (np.arange(80) + 0.5) * 0.05
     inside = (xs[:, None] > 2.5) & (xs[:, None] < 3.0) & (ys[None, :] > 1.0) & (ys[None, :] < 2.5)
     assert (om.occupied == inside).mean() > 0.98
-    polys = om.polygons()
-    assert len(polys) == 1
-    p = polys[0]
+    assert om.observed is None and (om.free == ~om.occupied).all()  # no cameras: every cell counts as observed
+    regions = om.regions()
+    assert len(regions) == 1 and regions[0].holes_m == ()
+    p = regions[0].outer_m
     assert abs(p[:, 0].min() - 2.5) < 0.06 and abs(p[:, 0].max() - 3.0) < 0.06
     assert abs(p[:, 1].min() - 1.0) < 0.06 and abs(p[:, 1].max() - 2.5) < 0.06
     area = 0.5 * np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1])

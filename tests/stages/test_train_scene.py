@@ -59,6 +59,13 @@ def test_artifact_files_and_manifest(trained):
     assert s["steps"] == 40 and s["device"] == "cpu" and s["source_kind"] == "capture"
     assert s["frames"] == 24 and s["eval_frames"] == 3 and s["train_frames"] == 21
     assert "train_seconds" in manifest["timing"]
+    assert s["image_size"] == [64, 48] and s["train_image_size"] == [64, 48] and s["metric"] is True
+    ev = json.loads(art.file("eval.json").read_text())
+    assert ev["resolution"]["scored_wh"] == [64, 48]  # the tiny preset scores as captured
+    assert "left-half" in ev["protocol"]["psnr_half, ssim_half, lpips_half"]
+    assert {"psnr", "ssim", "lpips", "psnr_half", "ssim_half", "lpips_half"} <= set(ev["views"][0])
+    scene = json.loads(art.file("scene.json").read_text())
+    assert scene["metric"] is True and scene["units"] == "m"
     # the resume directory is gone once the artifact is published
     assert not list((store.root / "tmp").glob("train_scene.*.resume"))
     from nsim.rendering import load_model

@@ -1,0 +1,345 @@
+"""The scene trainer's data: frames as uint8 images at the training resolution, poses, intrinsics.
+
+``SceneData.load(root, max_image_side=...)`` reads ``root/transforms.json`` (nerfstudio convention:
+a capture or a poses artifact) and its images one at a time, shrinking each to at most
+``max_image_side`` pixels on its longer side (``cv2.INTER_AREA``) before keeping it, so that a
+folder of 12-megapixel photos never sits in memory at full size. The intrinsics shrink with the
+images, exactly (``Camera.scaled``: ``f' = f s``, ``c' = (c + 0.5) s - 0.5`` in the OpenCV
+pixel-centre convention of ``nsim.geometry.cameras``). Rays are not stored: the trainer builds each
+batch's rays from the uint8 pixels it picks, the pixel directions (a per-camera table, or unprojected
+per batch when there are many cameras) and the poses.
+Held-out images can be read again at any resolution (``eval_camera``, ``eval_image``): scoring need
+not happen at the training resolution.
+
+Scale. Poses from ``nsim reconstruct`` are metric unless its ``transforms.json`` (``nsim_metric``,
+``nsim_scale``) or ``report.json`` (``scale.source``) say otherwise (:func:`poses_scale`). The
+trainer's lengths (near plane, box margin, occupancy cells, obstacle band, ...) are metres; for an
+arbitrary-scale scene they are multiplied by :func:`units_per_metre`, a guess of how many scene
+units a metre is, taken from the scene's size against a room capture's (see there).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.config import param
+from nsim.errors import InputError
+
+log = logging.getLogger(__name__)
+
+POINT_FILES = ("sparse_points.ply", "points3D.ply")
+BOUNDS_MODES = ("auto", "cameras", "points", "fixed")
+SCALE_MODES = ("auto", "metric", "arbitrary")
+#: What a room capture measures, for :func:`units_per_metre`: the median distance from a camera centre
+#: to a sparse point (every camera against every point), and the RMS distance of the camera centres
+#: from their mean. Measured on the test room with ground-truth poses, its depth maps standing in for
+#: the sparse points (150 frames, every 8th pixel: 3.39 m and 2.15 m; with 56 frames 3.55 m and 2.15 m;
+#: ``tests/train/test_scene_data.py::test_room_measures_about_one_unit_per_metre``).
+ROOM_CAMERA_TO_POINT_M = 3.4
+ROOM_CAMERA_SPREAD_M = 2.1
+MAX_SCALE_POINTS = 20_000  # points used for the median (every k-th), so the cost stays bounded
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Split, image size, scale and scene box.
+
+    bounds: ``cameras`` (camera centres' box + margin), ``points`` (sparse points' 1-99 % box + margin),
+    ``fixed`` (``aabb_*_m``, in the poses' own units), ``auto`` (points if any, else cameras).
+    max_image_side: the training images' longer side at most this many pixels (0: as captured).
+    scale: ``auto`` takes the poses artifact's word (``report.json`` / ``transforms.json``: only
+    ``arbitrary`` is not metric); ``metric`` / ``arbitrary`` override it. An arbitrary-scale scene's
+    metre lengths are multiplied by :func:`units_per_metre`.
+    """
+
+    holdout_every: int = param(8, ge=0, help="hold out frame i when i % holdout_every == 0 (0: none)")
+    max_image_side: int = param(1600, ge=0, help="train on copies whose longer side is at most this (px; "
+                                "cv2.INTER_AREA, intrinsics scaled exactly); 0: the images as captured")
+    scale: str = param("auto", choices=SCALE_MODES)
+    bounds: str = param("auto", choices=BOUNDS_MODES)
+    bounds_margin_m: float = param(2.0, ge=0.0)
+    aabb_min_m: tuple[float, float, float] | None = None
+    aabb_max_m: tuple[float, float, float] | None = None
+
+
+def shrink_factor(width: int, height: int, max_side: int) -> float:
+    """The factor that brings the longer side to ``max_side`` (1.0 when it is already no longer, or max_side is 0)."""
+    longest = max(width, height)
+    return 1.0 if max_side <= 0 or longest <= max_side else max_side / longest
+
+
+def camera_at(camera, max_side: int):
+    """``camera`` (``nsim.geometry.cameras.Camera``) for its image shrunk to ``max_side`` (itself when no smaller)."""
+    f = shrink_factor(camera.width, camera.height, max_side)
+    return camera if f == 1.0 else camera.scaled(f)
+
+
+def resize_image(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``image (H, W, C)`` uint8 resized to ``(height, width)`` by pixel-area averaging (itself when the size matches)."""
+    if image.shape[1] == width and image.shape[0] == height:
+        return image
+    import cv2
+
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
+    """z-depth ``(H, W)`` at ``(height, width)``: the nearest pixel centre (averaging would mix surfaces)."""
+    if depth.shape[1] == width and depth.shape[0] == height:
+        return depth
+    import cv2
+
+    return cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
+
+
+def poses_scale(root: Path, extra: dict[str, Any]) -> tuple[str | None, bool]:
+    """What the poses say about their scale: (source, metric). transforms.json's ``nsim_metric`` when it
+    is there; else the source (``report.json``'s ``scale.source``, else transforms.json's ``nsim_scale``)
+    is metric unless it is ``arbitrary``; no word at all: metric (a capture's ground truth)."""
+    source = extra.get("nsim_scale") if isinstance(extra.get("nsim_scale"), str) else None
+    report = root / "report.json"
+    if report.is_file():
+        try:
+            found = json.loads(report.read_text()).get("scale", {}).get("source")
+        except (json.JSONDecodeError, AttributeError, OSError):
+            raise InputError(f"{report}: not the JSON object nsim reconstruct writes") from None
+        if isinstance(found, str):
+            source = found
+    declared = extra.get("nsim_metric")
+    if isinstance(declared, bool):
+        return source, declared
+    return source, source != "arbitrary"
+
+
+@dataclass(eq=False)
+class SceneData:
+    """Frames of one capture, in memory at the training resolution.
+
+    images: (N, H, W, 3) uint8; cam_to_world: (N, 4, 4) float64 OpenCV axes; cameras: the distinct
+    intrinsics at the training resolution, camera_index: (N,) which one each frame uses (all the same
+    size); full_cameras: the same intrinsics at the images' own resolution; image_paths: the image
+    files (for scoring at another resolution); depth_paths: per frame the z-depth EXR or None;
+    points_xyz: (P, 3) sparse points or None. max_image_side: what the images were shrunk to (0: not).
+    scale_source: what the poses artifact says about its scale (None: nothing); metric: whether
+    lengths are metres. digest: of the original images, poses and intrinsics (not of the shrinking).
+    """
+
+    root: Path
+    names: list[str]
+    images: np.ndarray
+    cam_to_world: np.ndarray
+    cameras: list[Any]
+    camera_index: np.ndarray
+    depth_paths: list[Path | None]
+    points_xyz: np.ndarray | None = None
+    digest: str = ""
+    full_cameras: list[Any] | None = None
+    image_paths: list[Path] | None = None
+    max_image_side: int = 0
+    scale_source: str | None = None
+    metric: bool = True
+
+    @classmethod
+    def load(cls, root: str | os.PathLike, points_file: str | None = None, max_image_side: int = 0,
+             scale: str = "auto") -> SceneData:
+        """Read ``root/transforms.json`` and its images (shrunk to ``max_image_side``, 0: as they are);
+        ``scale`` as ``DataConfig.scale``. InputError names the file on problems."""
+        from nsim.io.images import read_image
+        from nsim.io.transforms_json import read_transforms
+
+        root = Path(root)
+        data = read_transforms(root / "transforms.json")
+        if not data.frames:
+            raise InputError(f"{root / 'transforms.json'}: frames: no frames")
+        full_cameras, camera_index, names, depth_paths, paths = [], [], [], [], []
+        size = (data.frames[0].camera.width, data.frames[0].camera.height)
+        h = hashlib.sha256()
+        images = None
+        for i, frame in enumerate(data.frames):
+            cam = frame.camera
+            if (cam.width, cam.height) != size:
+                raise InputError(f"{root / 'transforms.json'}: frames[{i}]: image size {cam.width}x{cam.height} "
+                                 f"differs from frames[0] ({size[0]}x{size[1]}); mixed sizes are not supported")
+            if cam not in full_cameras:
+                full_cameras.append(cam)
+            camera_index.append(full_cameras.index(cam))
+            img = read_image(root / frame.file_path)
+            if img.shape[:2] != (cam.height, cam.width):
+                raise InputError(f"{root / frame.file_path}: image is {img.shape[1]}x{img.shape[0]}, "
+                                 f"transforms.json says {cam.width}x{cam.height}")
+            h.update(img.tobytes())
+            h.update(np.ascontiguousarray(frame.cam_to_world).tobytes())
+            h.update(json.dumps(cam.to_dict(), sort_keys=True).encode())
+            small = camera_at(cam, max_image_side)
+            if images is None:  # one array for all frames, filled as they are read: no list + stack copy
+                images = np.empty((len(data.frames), small.height, small.width, 3), np.uint8)
+            images[i] = resize_image(img, small.width, small.height)
+            del img
+            names.append(frame.file_path)
+            paths.append(root / frame.file_path)
+            depth_paths.append(root / frame.depth_file_path if frame.depth_file_path else None)
+        points = None
+        candidates = [points_file] if points_file else list(POINT_FILES)
+        for name in candidates:
+            if (root / name).is_file():
+                from nsim.io.ply import read_ply
+
+                points = np.asarray(read_ply(root / name).xyz, dtype=np.float64)
+                h.update(points.tobytes())
+                break
+        source, metric = poses_scale(root, data.extra)
+        if scale != "auto":
+            metric = scale == "metric"
+        return cls(root, names, images, np.stack([f.cam_to_world for f in data.frames]),
+                   [camera_at(c, max_image_side) for c in full_cameras], np.asarray(camera_index), depth_paths,
+                   points, h.hexdigest(), full_cameras=full_cameras, image_paths=paths, max_image_side=max_image_side,
+                   scale_source=source, metric=metric)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.names)
+
+    @property
+    def size_hw(self) -> tuple[int, int]:
+        """The training images' (height, width)."""
+        return self.images.shape[1], self.images.shape[2]
+
+    @property
+    def full_size_hw(self) -> tuple[int, int]:
+        """The images' own (height, width), as captured."""
+        cam = (self.full_cameras or self.cameras)[0]
+        return cam.height, cam.width
+
+    def with_max_image_side(self, max_image_side: int) -> SceneData:
+        """This data with the images shrunk to ``max_image_side`` from the originals (itself when they already are)."""
+        full = self.full_cameras or self.cameras
+        cameras = [camera_at(c, max_image_side) for c in full]
+        if cameras == self.cameras:
+            return self
+        if self.image_paths is None:
+            raise ValueError("SceneData without image_paths cannot be resized")
+        from nsim.io.images import read_image
+
+        images = np.empty((self.n_frames, cameras[0].height, cameras[0].width, 3), np.uint8)
+        for i, path in enumerate(self.image_paths):
+            images[i] = resize_image(read_image(path), cameras[0].width, cameras[0].height)
+        from dataclasses import replace
+
+        return replace(self, images=images, cameras=cameras, full_cameras=full, max_image_side=max_image_side)
+
+    def split(self, holdout_every: int) -> tuple[np.ndarray, np.ndarray]:
+        """(train indices, held-out indices): frame i is held out when ``i % holdout_every == 0``."""
+        idx = np.arange(self.n_frames)
+        if holdout_every <= 0:
+            return idx, idx[:0]
+        held = idx % holdout_every == 0
+        if held.all():
+            raise InputError(f"{self.root}: holding out every {holdout_every}th frame leaves no training frames")
+        return idx[~held], idx[held]
+
+    def read_depth_z(self, i: int) -> np.ndarray | None:
+        """Ground-truth z-depth (H, W) of frame i at the images' own resolution, or None when the frame has none."""
+        if self.depth_paths[i] is None:
+            return None
+        from nsim.io.exr import read_depth_exr
+
+        return read_depth_exr(self.depth_paths[i])
+
+    # ------------------------------------------------------------------ scoring at any resolution
+    def eval_camera(self, i: int, image_side: int):
+        """Frame ``i``'s intrinsics for scoring with the longer side at most ``image_side`` px (0: as captured)."""
+        return camera_at((self.full_cameras or self.cameras)[self.camera_index[i]], image_side)
+
+    def eval_image(self, i: int, camera) -> np.ndarray:
+        """Frame ``i``'s image (H, W, 3) uint8 at ``camera``'s size: the training copy when that is the
+        size, else the file read again and shrunk (``cv2.INTER_AREA``)."""
+        if (camera.height, camera.width) == self.size_hw:
+            return self.images[i]
+        if self.image_paths is None:
+            raise ValueError("SceneData without image_paths has images at one size only")
+        from nsim.io.images import read_image
+
+        return resize_image(read_image(self.image_paths[i]), camera.width, camera.height)
+
+    def eval_depth_z(self, i: int, camera) -> np.ndarray | None:
+        """Frame ``i``'s ground-truth z-depth at ``camera``'s size (nearest pixel centre), or None."""
+        depth = self.read_depth_z(i)
+        return None if depth is None else resize_depth(depth, camera.width, camera.height)
+
+
+def scene_bounds(data: SceneData, cfg: DataConfig) -> np.ndarray:
+    """The scene box ``(2, 3)`` in world units (metres for a metric scene; see :class:`DataConfig`).
+
+    ``cfg`` holds the lengths to use: the trainer passes its config with the metre lengths already
+    converted to scene units (``bounds_margin_m``), so this function never converts."""
+    mode = cfg.bounds
+    if mode == "auto":
+        mode = "points" if data.points_xyz is not None and len(data.points_xyz) >= 8 else "cameras"
+    if mode == "fixed":
+        if cfg.aabb_min_m is None or cfg.aabb_max_m is None:
+            raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
+        lo, hi = np.asarray(cfg.aabb_min_m, float), np.asarray(cfg.aabb_max_m, float)
+    elif mode == "points":
+        if data.points_xyz is None or len(data.points_xyz) < 8:
+            raise InputError(f"{data.root}: data.bounds is 'points' but there is no sparse point cloud ({', '.join(POINT_FILES)})")
+        lo, hi = np.percentile(data.points_xyz, 1, axis=0), np.percentile(data.points_xyz, 99, axis=0)
+        centres = data.cam_to_world[:, :3, 3]
+        lo, hi = np.minimum(lo, centres.min(0)), np.maximum(hi, centres.max(0))
+        lo, hi = lo - cfg.bounds_margin_m, hi + cfg.bounds_margin_m
+    else:
+        centres = data.cam_to_world[:, :3, 3]
+        lo, hi = centres.min(0) - cfg.bounds_margin_m, centres.max(0) + cfg.bounds_margin_m
+    if not np.all(hi - lo > 1e-3):
+        raise InputError(f"data.bounds: degenerate scene box {lo.tolist()} .. {hi.tolist()}; set data.bounds_margin_m > 0")
+    return np.stack([lo, hi]).astype(np.float32)
+
+
+def camera_to_point_median(centres: np.ndarray, points: np.ndarray) -> float:
+    """Median distance from every camera centre ``(N, 3)`` to every point ``(P, 3)`` (at most
+    ``MAX_SCALE_POINTS`` points, every k-th, so the answer is deterministic and the cost bounded)."""
+    step = max(1, math.ceil(len(points) / MAX_SCALE_POINTS))
+    pts = np.asarray(points, np.float64)[::step]
+    d = np.linalg.norm(np.asarray(centres, np.float64)[:, None, :] - pts[None, :, :], axis=-1)
+    return float(np.median(d))
+
+
+def camera_spread(centres: np.ndarray) -> float:
+    """RMS distance of the camera centres ``(N, 3)`` from their mean."""
+    c = np.asarray(centres, np.float64)
+    return float(np.sqrt(np.mean(np.sum((c - c.mean(0)) ** 2, axis=-1))))
+
+
+def units_per_metre(data: SceneData) -> tuple[float, str]:
+    """How many of the scene's units a metre is, and how that was found.
+
+    Metric scenes: 1. Arbitrary-scale scenes: a guess from the scene's size against a room
+    capture's -- the median camera-to-sparse-point distance over ``ROOM_CAMERA_TO_POINT_M`` when the
+    scene has sparse points (the depth at which the capture saw things), else the camera centres'
+    RMS spread over ``ROOM_CAMERA_SPREAD_M``. Right within a factor of two or so for a room walked
+    through with a phone; it only sizes the trainer's lengths (near plane, box margin, cells), never
+    turns the scene into metres.
+    """
+    if data.metric:
+        return 1.0, "metric poses"
+    centres = data.cam_to_world[:, :3, 3]
+    if data.points_xyz is not None and len(data.points_xyz) >= 8:
+        d = camera_to_point_median(centres, data.points_xyz)
+        if d > 0 and math.isfinite(d):
+            return d / ROOM_CAMERA_TO_POINT_M, (f"median camera-to-sparse-point distance {d:.6g} units / "
+                                                f"{ROOM_CAMERA_TO_POINT_M} m (a room capture's)")
+    spread = camera_spread(centres)
+    if spread > 0 and math.isfinite(spread):
+        return spread / ROOM_CAMERA_SPREAD_M, (f"RMS camera spread {spread:.6g} units / "
+                                               f"{ROOM_CAMERA_SPREAD_M} m (a room capture's)")
+    log.warning("%s: arbitrary scale and nothing to size the scene by (one camera position, no points): "
+                "taking 1 unit per metre", data.root)
+    return 1.0, "nothing to measure: 1 unit per metre assumed"
