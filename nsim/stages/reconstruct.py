@@ -358,7 +358,7 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
     ref_xyz = reference.cam_to_world[:, :3, 3] if reference is not None else None
     title = f"{source.name}: {len(names)}/{len(frames)} registered, scale: {scale.source}"
     write_top_down_png(out_dir / "top_down.png", result.poses_se3(names), result.points_xyz, title=title,
-                       reference_xyz=ref_xyz)
+                       units="m" if scale.source != "arbitrary" else "units", reference_xyz=ref_xyz)
     timing["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
     return {
         "images_given": report["images_given"],

@@ -637,6 +637,15 @@ class HumanSet:
 
 
 # ---------------------------------------------------------------------------------- assembling the artifact
+def _world_units(ctx: RunContext, scene: str | None) -> str:
+    """What the world's lengths are: metres, unless the scene was trained on poses of arbitrary scale."""
+    if scene is not None:
+        doc = json.loads(ctx.store.get(scene).file("scene.json").read_text())
+        if doc.get("extra", doc).get("metric", True) is False:
+            return "arbitrary units (the poses had no metric scale; see scene.json units_per_m), z up"
+    return "metres, z up"
+
+
 def assemble(out_dir: Path, inputs: Inputs, cfg: Config, rig, frames: list[dict], shard_dirs: list[Path],
              ctx: RunContext) -> dict[str, Any]:
     """Hard-link every shard's files into the artifact, then write the frame-level files."""
@@ -656,7 +665,7 @@ def assemble(out_dir: Path, inputs: Inputs, cfg: Config, rig, frames: list[dict]
         "scene": inputs.scene,
         "frames": [{k: f[k] for k in ("index", "time_s", "name") if k in f} for f in frames],
         "conventions": {
-            "world": "metres, z up",
+            "world": _world_units(ctx, inputs.scene),
             "camera": "OpenCV axes (x right, y down, z forward)",
             "lidar": "x forward, y left, z up; rows = beams (ring 0 lowest), columns = azimuth",
             "body": "x forward, y left, z up",
