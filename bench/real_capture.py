@@ -125,7 +125,8 @@ def quick_capture(ws: Path, log: Path) -> tuple[list[str], Path | None]:
     """A small test-room capture; returns the reconstruct arguments and the reference (its GT poses)."""
     presets = {p.stem for p in (REPO / "configs" / "capture").glob("*.yaml")}
     preset = "phone" if "phone" in presets else "tiny"
-    sets = ["--set", "n_frames=60", "--set", "width=160", "--set", "height=120", "--set", "video=false"]
+    # SIFT needs about 100 frames of the two-loop path at 160x120 to chain them (as the tiny demo does)
+    sets = ["--set", "n_frames=100", "--set", "width=160", "--set", "height=120", "--set", "video=false"]
     cap, _, _ = nsim(ws, "capture", "synth", "--preset", preset, *sets, "--tag", "capture/bench", log=log)
     cap_dir = Store(ws).get(cap).path
     return [str(cap_dir / "images")], cap_dir / "transforms.json"
