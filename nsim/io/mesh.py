@@ -22,9 +22,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from plyfile import PlyData, PlyElement
+from plyfile import PlyData
 
 from nsim.io import atomic_path
+from nsim.io.ply import write_ply_columns
 
 
 def _check(xyz: np.ndarray, rgb: np.ndarray | None, normals: np.ndarray | None, faces: np.ndarray | None) -> None:
@@ -60,28 +61,12 @@ def write_surface_ply(
     normals = None if normals is None else np.asarray(normals)
     faces = None if faces is None else np.asarray(faces)
     _check(xyz, rgb, normals, faces)
-    for c in comments:
-        if "\n" in c or "\r" in c:
-            raise ValueError(f"PLY comment with a line break: {c!r}")
     columns: dict[str, np.ndarray] = {c: xyz[:, i].astype("<f4") for i, c in enumerate("xyz")}
     if normals is not None:
         columns |= {c: normals[:, i].astype("<f4") for i, c in enumerate(("nx", "ny", "nz"))}
     if rgb is not None:
         columns |= {c: rgb[:, i] for i, c in enumerate(("red", "green", "blue"))}
-    vertex = np.empty(len(xyz), dtype=[(k, v.dtype) for k, v in columns.items()])
-    for k, v in columns.items():
-        vertex[k] = v
-    elements = [PlyElement.describe(vertex, "vertex")]
-    if faces is not None:
-        face = np.empty(len(faces), dtype=[("vertex_indices", "<i4", (3,))])
-        face["vertex_indices"] = faces.astype("<i4")
-        elements.append(PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"},
-                                            val_types={"vertex_indices": "i4"}))
-    ply = PlyData(elements, text=False, byte_order="<", comments=list(comments))
-    path = Path(path)
-    with atomic_path(path) as tmp, open(tmp, "xb") as f:
-        ply.write(f)
-    return path
+    return write_ply_columns(path, columns, faces=faces, comments=comments)
 
 
 def read_ply_comments(path: str | os.PathLike) -> list[str]:

@@ -8,7 +8,7 @@ On disk: one `vertex` element with properties `x y z` (float or double), optiona
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -72,10 +72,35 @@ def write_ply(
     if cloud.rgb is not None:
         columns |= {c: cloud.rgb[:, i] for i, c in enumerate(("red", "green", "blue"))}
     columns |= fields
-    vertex = np.empty(len(xyz), dtype=[(name, v.dtype.newbyteorder("<")) for name, v in columns.items()])
+    return write_ply_columns(path, columns, binary=binary)
+
+
+def write_ply_columns(
+    path: str | os.PathLike,
+    columns: Mapping[str, np.ndarray],
+    faces: np.ndarray | None = None,
+    comments: Sequence[str] = (),
+    binary: bool = True,
+) -> Path:
+    """Write a ``vertex`` element with these (N,) columns, in this order, atomically; returns `path`.
+
+    faces: optional (F, 3) vertex indices (a ``face`` element, uchar counts, int32 indices);
+    comments: header lines (one line each, no line breaks). Values are stored little-endian as given.
+    """
+    for c in comments:
+        if "\n" in c or "\r" in c:
+            raise ValueError(f"PLY comment with a line break: {c!r}")
+    n = len(next(iter(columns.values())))
+    vertex = np.empty(n, dtype=[(name, np.asarray(v).dtype.newbyteorder("<")) for name, v in columns.items()])
     for name, values in columns.items():
         vertex[name] = values
-    ply = PlyData([PlyElement.describe(vertex, "vertex")], text=not binary, byte_order="<")
+    elements = [PlyElement.describe(vertex, "vertex")]
+    if faces is not None:
+        face = np.empty(len(faces), dtype=[("vertex_indices", "<i4", (3,))])
+        face["vertex_indices"] = np.asarray(faces).astype("<i4")
+        elements.append(PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"},
+                                            val_types={"vertex_indices": "i4"}))
+    ply = PlyData(elements, text=not binary, byte_order="<", comments=list(comments))
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "xb") as f:
         ply.write(f)

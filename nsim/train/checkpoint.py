@@ -26,6 +26,7 @@ from typing import Any, Protocol, TypeVar
 import torch
 
 from nsim.errors import InputError
+from nsim.io import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -60,16 +61,8 @@ def save_checkpoint(state: dict[str, Any], path: str | os.PathLike) -> None:
     check_plain(state)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            torch.save(state, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
 
 
 def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device | None = None) -> dict[str, Any]:

@@ -596,10 +596,13 @@ class Store:
     def release(self) -> None:
         """Drop this process's lease (it also goes when the process exits)."""
         self._lease.release()
+        self._checked_ids.clear()  # no longer held: the next get holds and checks again
 
     def get(self, art_id: str) -> Artifact:
         """The artifact with this id; a checked store also holds it and verifies it (see :meth:`check`)."""
         obj = self.object_path(art_id)
+        if art_id in self._checked_ids and self._lease.pid == os.getpid():  # held and checked: gc cannot take it
+            return Artifact(art_id, obj)
         with self._holding() if self.checked else contextlib.nullcontext():
             if self.checked:
                 self.hold([art_id])
