@@ -59,4 +59,7 @@ def command(click_ctx, source, preset, config_file, overrides, force, tag, impor
         images_root=Path(images_root) if images_root else None, skip_missing=skip_missing, metric=metric,
     )
     out = reconstruct.run(inputs, cfg, ctx)
+    frames_line = ctx.store.get(out.poses).manifest.get("summary", {}).get("video_frames")
+    if frames_line:  # a video: how many of its frames were sampled, used, blurred, duplicates
+        click.echo(frames_line, err=True)
     report_artifact(ctx, out.poses, out.cache_hit, tag)

@@ -17,6 +17,14 @@ artifact's TUM trajectory and transforms.json use; when the container reports no
 decoder's position is used instead. Selected frames are named ``frame_{index:05d}.png`` after
 their index in the video, so a reference whose frames are named the same way (as a capture
 artifact's are) can be matched by file name.
+
+Every decoded frame gets exactly one selection status (:class:`FrameAccount`), decided in the
+order the rule applies: ``blurred`` (sharpness below the threshold), ``not sampled`` (sharp
+enough, but a sharper frame of its span was picked), ``duplicate`` (its span's pick, too
+close to the previously kept frame) or ``kept``. A span whose frames are all blurred picks
+none. Each kept frame then gets SfM's verdict (``used``, ``not registered`` or
+:data:`POSE_JUMP`), the statuses report.json's list of images uses:
+:func:`video_frame_report` writes the whole account, not-sampled frames as runs.
 """
 
 from __future__ import annotations
@@ -25,9 +33,10 @@ import logging
 import math
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -46,6 +55,14 @@ THUMB_SIZE = (32, 24)
 
 #: (phase, done, total) progress callback.
 ProgressFn = Callable[[str, int, int], None]
+
+#: What frame selection decided for a video frame (see the module docstring).
+BLURRED, NOT_SAMPLED, DUPLICATE, KEPT = "blurred", "not sampled", "duplicate", "kept"
+#: What SfM made of a kept frame or an input image (report.json's ``images[].status``).
+USED, NOT_REGISTERED = "used", "not registered"
+POSE_JUMP = "registered, then dropped: its pose jumped away from both neighbours"
+#: Short labels for the one-line summary.
+_LABELS = {POSE_JUMP: "dropped for a pose jump", DUPLICATE: "duplicates"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,6 +121,87 @@ def _read_rgb(cap: cv2.VideoCapture) -> np.ndarray | None:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
+def frame_name(index: int) -> str:
+    """The file name a video frame is stored under."""
+    return f"frame_{index:05d}.png"
+
+
+@dataclass(frozen=True, eq=False)
+class FrameAccount:
+    """What selection decided for each of a video's N frames (the rule: module docstring).
+
+    sharpness: (N,) float64; status: (N,) str, one of BLURRED, NOT_SAMPLED, DUPLICATE, KEPT;
+    window: (N,) int64, the span each frame lies in (-1 when there are none); picked: (W,)
+    int64, each span's pick, -1 where all its frames are blurred; difference: (N,) float64,
+    for a pick the mean absolute difference of its thumbnail from that of the previously kept
+    frame, ``compared_with`` ((N,) int64), NaN and -1 for the other frames and the first pick.
+    blur_threshold = blur_ratio x median_sharpness.
+    """
+
+    sharpness: np.ndarray
+    status: np.ndarray
+    window: np.ndarray
+    picked: np.ndarray
+    difference: np.ndarray
+    compared_with: np.ndarray
+    median_sharpness: float
+    blur_ratio: float
+    blur_threshold: float
+    dedup_threshold: float
+
+    @property
+    def kept(self) -> np.ndarray:
+        """Indices (sorted, int64) of the kept frames."""
+        return np.flatnonzero(self.status == KEPT).astype(np.int64)
+
+    def counts(self) -> dict[str, int]:
+        """Frames per selection status (every status, zeros included); they sum to N."""
+        return {s: int(np.count_nonzero(self.status == s)) for s in (BLURRED, NOT_SAMPLED, DUPLICATE, KEPT)}
+
+
+def account_frames(
+    sharpness_values: np.ndarray,
+    thumbnails: np.ndarray,
+    n_frames: int,
+    blur_ratio: float = 0.4,
+    dedup_threshold: float = 0.01,
+) -> FrameAccount:
+    """Every frame's selection status and the measure that decided it (rule: module docstring).
+
+    sharpness_values: (N,) float; thumbnails: (N, h, w) float in [0, 1].
+    """
+    sharp = np.asarray(sharpness_values, dtype=np.float64)
+    n = len(sharp)
+    median = float(np.median(sharp)) if n else 0.0
+    threshold = blur_ratio * median
+    status = np.where(sharp < threshold, BLURRED, NOT_SAMPLED).astype(object)
+    window = np.full(n, -1, dtype=np.int64)
+    difference = np.full(n, np.nan)
+    compared_with = np.full(n, -1, dtype=np.int64)
+    n_windows = min(n_frames, n) if n_frames >= 1 else 0
+    edges = np.linspace(0, n, n_windows + 1)
+    picked = np.full(n_windows, -1, dtype=np.int64)
+    last_kept = -1
+    for w, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        span = np.arange(int(np.ceil(lo)), int(np.ceil(hi)))
+        window[span] = w
+        span = span[status[span] != BLURRED]
+        if span.size == 0:
+            continue  # the whole span is blurred
+        best = int(span[np.argmax(sharp[span])])  # first maximum: deterministic
+        picked[w] = best
+        if last_kept >= 0:
+            difference[best] = float(np.abs(thumbnails[best] - thumbnails[last_kept]).mean())
+            compared_with[best] = last_kept
+            if difference[best] < dedup_threshold:
+                status[best] = DUPLICATE
+                continue
+        status[best] = KEPT
+        last_kept = best
+    return FrameAccount(sharp, status, window, picked, difference, compared_with, median, float(blur_ratio),
+                        float(threshold), float(dedup_threshold))
+
+
 def choose_frames(
     sharpness_values: np.ndarray,
     thumbnails: np.ndarray,
@@ -115,33 +213,116 @@ def choose_frames(
 
     sharpness_values: (N,) float; thumbnails: (N, h, w) float in [0, 1].
     """
-    sharp = np.asarray(sharpness_values, dtype=np.float64)
-    n = len(sharp)
-    if n == 0 or n_frames < 1:
-        return np.zeros(0, dtype=np.int64)
-    threshold = blur_ratio * float(np.median(sharp))
-    edges = np.linspace(0, n, min(n_frames, n) + 1)
-    kept: list[int] = []
-    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        span = np.arange(int(np.ceil(lo)), int(np.ceil(hi)))
-        span = span[sharp[span] >= threshold]
-        if span.size == 0:
-            continue  # the whole span is blurred
-        best = int(span[np.argmax(sharp[span])])  # first maximum: deterministic
-        if kept and float(np.abs(thumbnails[best] - thumbnails[kept[-1]]).mean()) < dedup_threshold:
+    return account_frames(sharpness_values, thumbnails, n_frames, blur_ratio, dedup_threshold).kept
+
+
+def _opt(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def video_frame_report(account: FrameAccount, timestamps_s: Sequence[float], fates: Mapping[str, str],
+                       fps: float | None = None) -> dict[str, Any]:
+    """report.json's account of every video frame: what selection, then SfM, made of it.
+
+    timestamps_s: (N,) every decoded frame's time; fates: kept frame name -> SfM's status
+    (a kept frame missing from it stays ``kept``). ``frames`` lists, in index order, one entry
+    per frame (``index``, ``timestamp_s``, ``status``, the measure that decided it), except
+    that consecutive not-sampled frames of one span make one entry with ``last``, ``count``,
+    ``last_timestamp_s`` and ``picked`` (the frame taken from their span instead). Kept frames
+    carry their ``name`` (as in ``images``). ``counts`` (statuses, summing to
+    ``frames_decoded``) and ``frames_sampled`` (the spans' picks: kept and duplicate frames)
+    summarize it.
+    """
+    times = np.asarray(timestamps_s, dtype=np.float64)
+    n = len(account.status)
+    if len(times) != n:
+        raise ValueError(f"video_frame_report: {len(times)} timestamps for {n} frames")
+    entries: list[dict[str, Any]] = []
+    i = 0
+    while i < n:
+        status = account.status[i]
+        entry: dict[str, Any] = {"index": i, "timestamp_s": float(times[i])}
+        if status == NOT_SAMPLED:
+            j = i
+            while j + 1 < n and account.status[j + 1] == NOT_SAMPLED and account.window[j + 1] == account.window[i]:
+                j += 1
+            w = int(account.window[i])
+            entry.update(status=NOT_SAMPLED, last=j, count=j - i + 1, last_timestamp_s=float(times[j]),
+                         picked=int(account.picked[w]) if w >= 0 else None)
+            entries.append(entry)
+            i = j + 1
             continue
-        kept.append(best)
-    return np.asarray(kept, dtype=np.int64)
+        entry["sharpness"] = float(account.sharpness[i])
+        if status == KEPT:
+            name = frame_name(i)
+            entry.update(name=name, status=fates.get(name, KEPT))
+        else:
+            entry["status"] = status
+        if status in (KEPT, DUPLICATE):
+            entry["difference"] = _opt(account.difference[i])
+            entry["compared_with"] = int(account.compared_with[i]) if account.compared_with[i] >= 0 else None
+        entries.append(entry)
+        i += 1
+    counts: dict[str, int] = {BLURRED: 0, NOT_SAMPLED: 0, DUPLICATE: 0, USED: 0}
+    for e in entries:
+        counts[e["status"]] = counts.get(e["status"], 0) + e.get("count", 1)
+    return {
+        "frames_decoded": n,
+        "fps": fps,
+        "windows": len(account.picked),
+        "frames_sampled": int(np.count_nonzero(np.isin(account.status, (KEPT, DUPLICATE)))),
+        "median_sharpness": account.median_sharpness,
+        "blur_ratio": account.blur_ratio,
+        "blur_threshold": account.blur_threshold,
+        "dedup_threshold": account.dedup_threshold,
+        "counts": counts,
+        "frames": entries,
+    }
 
 
-def select_video_frames(
+def frame_summary_line(video_report: dict[str, Any]) -> str:
+    """One line of counts from :func:`video_frame_report`'s output, e.g. ``"120 of 1800 video
+    frames sampled (97 used, 15 not registered, 8 duplicates); 40 blurred, 1640 not sampled
+    (a sharper frame of their span was sampled)"``."""
+    counts = dict(video_report["counts"])
+    blurred, not_sampled = counts.pop(BLURRED, 0), counts.pop(NOT_SAMPLED, 0)
+    duplicates = counts.pop(DUPLICATE, 0)
+    sampled = [f"{c} {_LABELS.get(s, s)}" for s, c in counts.items() if c]
+    sampled += [f"{duplicates} {_LABELS[DUPLICATE]}"] if duplicates else []
+    what = f" ({', '.join(sampled)})" if sampled else ""
+    why = " (a sharper frame of their span was sampled)" if not_sampled else ""
+    return (f"{video_report['frames_sampled']} of {video_report['frames_decoded']} video frames sampled{what}; "
+            f"{blurred} blurred, {not_sampled} not sampled{why}")
+
+
+@dataclass(frozen=True, eq=False)
+class VideoSelection:
+    """The frames taken from a video and the account of all its frames.
+
+    frames: the kept frames, in time order; account: every decoded frame's selection status;
+    timestamps_s: (N,) float64, every decoded frame's time; fps: the container's rate (None
+    when it reports none).
+    """
+
+    frames: list[SelectedFrame]
+    account: FrameAccount
+    timestamps_s: np.ndarray
+    fps: float | None
+
+    def report(self, fates: Mapping[str, str]) -> dict[str, Any]:
+        """:func:`video_frame_report` of this video (fates: kept frame name -> SfM's status)."""
+        return video_frame_report(self.account, self.timestamps_s, fates, self.fps)
+
+
+def select_video(
     video_path: str | os.PathLike,
     n_frames: int,
     blur_ratio: float = 0.4,
     dedup_threshold: float = 0.01,
     progress: ProgressFn | None = None,
-) -> list[SelectedFrame]:
-    """About ``n_frames`` sharp, distinct frames spread over the video, in time order.
+) -> VideoSelection:
+    """About ``n_frames`` sharp, distinct frames spread over the video, in time order, and
+    what became of every other frame.
 
     Fewer come back when spans are entirely blurred or duplicates. Raises InputError naming
     the file when it cannot be opened or decoded, has no frames, or yields fewer than 3 frames.
@@ -151,7 +332,7 @@ def select_video_frames(
         raise ValueError(f"n_frames: need at least {MIN_IMAGES}, got {n_frames}")
     cap = _open_video(path)
     fps = cap.get(cv2.CAP_PROP_FPS)
-    fps = fps if np.isfinite(fps) and 0.0 < fps < 10_000.0 else None
+    fps = float(fps) if np.isfinite(fps) and 0.0 < fps < 10_000.0 else None
     total_hint = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
     sharp, thumbs, times, shape = [], [], [], None
     try:
@@ -174,12 +355,15 @@ def select_video_frames(
         cap.release()
     if not sharp:
         raise InputError(f"{path}: no frames could be decoded (empty or corrupt video)")
-    keep = choose_frames(np.array(sharp), np.stack(thumbs), n_frames, blur_ratio, dedup_threshold)
-    log.info("%s: %d frames decoded, %d selected (median sharpness %.3g)", path, len(sharp), len(keep),
-             float(np.median(sharp)))
+    account = account_frames(np.array(sharp), np.stack(thumbs), n_frames, blur_ratio, dedup_threshold)
+    keep, counts = account.kept, account.counts()
+    log.info("%s: %d frames decoded, %d kept, %d duplicates, %d blurred, %d not sampled (median sharpness %.3g)",
+             path, len(sharp), len(keep), counts[DUPLICATE], counts[BLURRED], counts[NOT_SAMPLED],
+             account.median_sharpness)
     if len(keep) < MIN_IMAGES:
-        raise InputError(f"{path}: only {len(keep)} usable frames (of {len(sharp)}) after dropping blurred "
-                         f"and duplicate frames; need at least {MIN_IMAGES}: record a longer or steadier video")
+        raise InputError(f"{path}: only {len(keep)} usable frames (of {len(sharp)}: {counts[BLURRED]} blurred, "
+                         f"{counts[DUPLICATE]} duplicates) after dropping blurred and duplicate frames; need at "
+                         f"least {MIN_IMAGES}: record a longer or steadier video")
     # Second pass: decode again and keep the winners.
     wanted = set(keep.tolist())
     frames: list[SelectedFrame] = []
@@ -190,8 +374,7 @@ def select_video_frames(
                 rgb = _read_rgb(cap)
                 if rgb is None:
                     break
-                frames.append(SelectedFrame(index, float(times[index]), rgb, float(sharp[index]),
-                                            f"frame_{index:05d}.png"))
+                frames.append(SelectedFrame(index, float(times[index]), rgb, float(sharp[index]), frame_name(index)))
             elif not cap.grab():
                 break
     finally:
@@ -199,7 +382,18 @@ def select_video_frames(
     if len(frames) != len(keep):
         raise InputError(f"{path}: decoding stopped early on the second pass (frame {len(frames)} of "
                          f"{len(keep)} selected); the file may be corrupt")
-    return frames
+    return VideoSelection(frames, account, np.asarray(times, dtype=np.float64), fps)
+
+
+def select_video_frames(
+    video_path: str | os.PathLike,
+    n_frames: int,
+    blur_ratio: float = 0.4,
+    dedup_threshold: float = 0.01,
+    progress: ProgressFn | None = None,
+) -> list[SelectedFrame]:
+    """The frames :func:`select_video` keeps."""
+    return select_video(video_path, n_frames, blur_ratio, dedup_threshold, progress).frames
 
 
 def _natural_key(name: str) -> list:

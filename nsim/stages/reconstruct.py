@@ -26,7 +26,11 @@ Artifact layout (kind ``poses``)::
     sparse_points.ply    the sparse points with colour, reprojection error and track length; an
                          import's ply_file_path points, moved into the output world
     report.json          images given/registered, mean reprojection error, mean track length,
-                         number of 3D points, scale source and Sim(3) residual, the options used
+                         number of 3D points, scale source and Sim(3) residual, the options used;
+                         ``images``: every input image and what became of it; ``video_frames``
+                         (a video source, else null): every frame of the video, blurred,
+                         duplicate, not sampled or an image's status, and the measure that
+                         decided it (``nsim.sfm.frames.video_frame_report``)
     top_down.png         the camera path over the sparse points, from above
 
 Wall time per phase is in the manifest's ``timing`` (``nsim show``), outside the artifact's
@@ -38,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import tempfile
 import time
 from pathlib import Path
@@ -53,8 +58,10 @@ from nsim.progress import progress_bar
 if TYPE_CHECKING:
     from nsim.sfm.imported import ImportPlan
 
+log = logging.getLogger(__name__)
+
 STAGE = "reconstruct"
-VERSION = 3
+VERSION = 4
 CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
 MATCHERS = ("sequential", "exhaustive")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
@@ -63,8 +70,10 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
 @dataclasses.dataclass(frozen=True)
 class Config:
     frames: int = param(150, ge=3, le=100_000, help="about this many frames are taken from a video")
-    blur_ratio: float = param(0.4, ge=0.0, le=1.0, help="drop frames sharper than this fraction of the video's norm")
-    dedup_threshold: float = param(0.01, ge=0.0, help="drop frames closer than this to the last kept one")
+    blur_ratio: float = param(0.4, ge=0.0, le=1.0, help="drop frames less sharp than this fraction of the video's "
+                                                       "median sharpness")
+    dedup_threshold: float = param(0.01, ge=0.0, help="drop frames closer than this to the last kept one "
+                                                       "(mean absolute difference of 32x24 grey thumbnails, 0-1)")
     camera_model: str = param("SIMPLE_RADIAL", choices=CAMERA_MODELS)
     shared_intrinsics: bool = True
     matcher: str = param("sequential", choices=MATCHERS)
@@ -193,11 +202,13 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str,
 
 
 def _image_status(name: str, stats: dict[str, Any]) -> str:
+    from nsim.sfm.frames import NOT_REGISTERED, POSE_JUMP, USED
+
     if name in stats.get("rejected", ()):
-        return "registered, then dropped: its pose jumped away from both neighbours"
+        return POSE_JUMP
     if name in stats.get("unregistered", ()):
-        return "not registered"
-    return "used"
+        return NOT_REGISTERED
+    return USED
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
@@ -272,7 +283,7 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
         write_transforms,
     )
     from nsim.sfm.colmap import SfmOptions, run_sfm, write_model
-    from nsim.sfm.frames import load_image_folder, select_video_frames, write_frames
+    from nsim.sfm.frames import frame_summary_line, load_image_folder, select_video, write_frames
     from nsim.sfm.metric import to_metric
     from nsim.sfm.plot import write_top_down_png
 
@@ -291,12 +302,14 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
                          for f in read_transforms(art.file("transforms.json")).frames if f.timestamp_s is not None}
     else:
         source = Path(inputs.source)
+    selection = None
     with progress_bar(None, "selecting frames", ctx.show_progress) as bar:
         if source.is_dir():
             frames = load_image_folder(source, shared_intrinsics=cfg.shared_intrinsics)
         elif source.suffix.lower() in VIDEO_SUFFIXES:
-            frames = select_video_frames(source, cfg.frames, cfg.blur_ratio, cfg.dedup_threshold,
-                                         progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
+            selection = select_video(source, cfg.frames, cfg.blur_ratio, cfg.dedup_threshold,
+                                     progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
+            frames = selection.frames
         else:
             raise InputError(f"{source}: expected a video ({', '.join(VIDEO_SUFFIXES)}) or a folder of images")
     write_frames(frames, out_dir / "images")
@@ -339,6 +352,8 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
                       "track_length": result.points_track_length.astype(np.uint16)})
     stats = result.stats.to_dict()
     stats.pop("phase_wall_s", None)
+    fates = {f.name: _image_status(f.name, stats) for f in frames}
+    video_frames = selection.report(fates) if selection is not None else None
     report = {
         "source": f"capture {inputs.capture[:12]}" if inputs.capture else source.name,
         "images_given": stats.get("images_given"),
@@ -352,7 +367,9 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
         "focal_prior": {"source": "exif", "hfov_deg": focal_prior} if focal_prior is not None else None,
         "principal_point": stats.get("principal_point"),
         # every input image and what became of it
-        "images": [{"name": f.name, "status": _image_status(f.name, stats)} for f in frames],
+        "images": [{"name": f.name, "status": fates[f.name]} for f in frames],
+        # every frame of a video source and what became of it (joins ``images`` on name)
+        "video_frames": video_frames,
     }
     (out_dir / "report.json").write_text(json.dumps(_jsonable(report), indent=1, sort_keys=True) + "\n")
     ref_xyz = reference.cam_to_world[:, :3, 3] if reference is not None else None
@@ -360,12 +377,16 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
     write_top_down_png(out_dir / "top_down.png", result.poses_se3(names), result.points_xyz, title=title,
                        units="m" if scale.source != "arbitrary" else "units", reference_xyz=ref_xyz)
     timing["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
-    return {
+    summary = {
         "images_given": report["images_given"],
         "images_registered": report["images_registered"],
         "scale_source": scale.source,
         "camera_model": cfg.camera_model,
     }
+    if video_frames is not None:
+        summary["video_frames"] = frame_summary_line(video_frames)
+        log.info("%s: %s", source.name, summary["video_frames"])
+    return summary
 
 
 def _scale_inputs(inputs: Inputs):
