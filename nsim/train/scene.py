@@ -2,8 +2,10 @@
 
 Input: a directory holding ``transforms.json`` (frames with poses and intrinsics, nerfstudio
 convention; a capture artifact or a poses artifact) and the images it names; optionally
-each frame's ``depth_file_path`` (used only to *score* depth) and a sparse point cloud
-``sparse_points.ply`` (``points3D.ply`` also accepted) for optional depth supervision.
+each frame's ``depth_file_path`` (z-depth: scores held-out depth, and supervises training
+depth when ``loss.image_depth_weight`` > 0), its ``mask_path`` (rays are drawn only from the
+pixels a mask keeps), and a sparse point cloud ``sparse_points.ply`` (``points3D.ply`` also
+accepted) for optional sparse depth supervision (``loss.depth_weight``).
 
 Split: frame ``i`` is held out for evaluation when ``i % holdout_every == 0`` (every 8th).
 
@@ -147,6 +149,9 @@ class LossConfig:
     opacity_start: float = param(0.0, ge=0.0, le=1.0, help="fraction of the steps before the opacity term starts")
     depth_weight: float = param(0.0, ge=0.0, help="sparse-point depth supervision (needs sparse_points.ply)")
     depth_rays_per_batch: int = param(256, ge=1)
+    image_depth_weight: float = param(0.0, ge=0.0, help="depth-image supervision (needs the frames' "
+                                      "depth_file_path): on every batch ray with depth, |expected range - "
+                                      "depth range| / depth range (image_depth_loss)")
 
 
 @dataclass(frozen=True)
@@ -205,6 +210,32 @@ def in_scene_units(cfg: TrainSceneConfig, units_per_m: float) -> TrainSceneConfi
                        obstacle_band_m=(out.obstacle_band_m[0] * s, out.obstacle_band_m[1] * s),
                        obstacle_cell_m=out.obstacle_cell_m * s, obstacle_density=out.obstacle_density / s),
     )
+
+
+def z_depth_to_range(depth_z: Tensor, dirs_cam_z: Tensor) -> Tensor:
+    """Range along the unit ray ``z / d_z`` from z-depth ``(R,)`` and the ray's camera-axes direction's
+    z ``(R,)`` (``nsim.rendering.rays.camera_dirs``); 0 where there is no depth (``z <= 0``) or the ray
+    does not look forward (``d_z <= 1e-6``). The torch twin of ``nsim.sensors.depth.z_depth_to_range``."""
+    ok = (depth_z > 0) & (dirs_cam_z > 1e-6)
+    return torch.where(ok, depth_z / torch.where(ok, dirs_cam_z, 1.0), 0.0)
+
+
+def image_depth_loss(pred_range: Tensor, target_range: Tensor, n_rays: int) -> Tensor:
+    """``sum |pred - target| / target`` over the rays with a target (``target > 0``), divided by ``n_rays``
+    (the batch's rays with a target; a part of a batch passes the whole batch's count).
+
+    pred_range: ``(R,)`` the rendered expected range (``RenderOutput.depth``, normalised ``sum w t /
+    sum w``); target_range: ``(R,)`` from the depth image (:func:`z_depth_to_range`), 0 for none.
+    The expected-depth term of Urban Radiance Fields (Rematas et al., CVPR 2022, sec. 3.2; nerfstudio's
+    ``urban_radiance_field_depth_loss``, a depth-nerfacto option), a squared error there, taken here as
+    an L1 relative to the target, the form of ``loss.depth_weight``'s sparse-point term and of the
+    AbsRel that depth is scored by: a metre off at 10 m weighs what 10 cm off at 1 m does, and the
+    weight needs no change between metric and arbitrary-scale scenes. Its gradient is
+    ``sign(pred - target) / target / n_rays``.
+    """
+    has = target_range > 0
+    rel = torch.abs(pred_range - target_range) / torch.where(has, target_range, 1.0)
+    return torch.where(has, rel, 0.0).sum() / max(1, n_rays)
 
 
 def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
@@ -277,6 +308,23 @@ class SceneTrainer:
         self.cam_to_world = torch.as_tensor(data.cam_to_world, dtype=torch.float32, device=self.device)
         self.train_index = torch.as_tensor(self.train_ids, dtype=torch.long, device=self.device)
         self.depth_points = self._project_points() if cfg.loss.depth_weight > 0 else None
+        # masks: one bool a pixel; kept_in_row (T * H,) kept pixels per (training image, row), kept_rows its running sum
+        self.masks = self.kept_in_row = self.kept_rows = None
+        if data.masks is not None:
+            self.masks = torch.as_tensor(data.masks).to(self.device)
+            self.kept_in_row = self.masks.sum(-1, dtype=torch.int64)[self.train_index].reshape(-1)
+            if int(self.kept_in_row.sum()) == 0:
+                raise InputError(f"{data.root}: the masks (mask_path) keep no pixel of any training image")
+            self.kept_rows = torch.cumsum(self.kept_in_row, 0)
+        # depth images at the training resolution, (N, H, W) float16 z-depth, 0: none
+        self.depth_z, self.depth_digest = None, None
+        if cfg.loss.image_depth_weight > 0:
+            depth_z = data.train_depth_z(self.train_ids)
+            if depth_z is None:
+                raise InputError(f"{data.root}: loss.image_depth_weight > 0 but no training frame has a depth "
+                                 "image (depth_file_path)")
+            self.depth_digest = hashlib.sha256(depth_z.tobytes()).hexdigest()
+            self.depth_z = torch.as_tensor(depth_z).to(self.device)
         groups = [{"params": list(self.model.field.parameters()), "lr": cfg.optim.lr_field, "name": "field"}]
         if len(self.model.proposals):
             groups.append({"params": list(self.model.proposals.parameters()), "lr": cfg.optim.lr_proposal,
@@ -341,17 +389,40 @@ class SceneTrainer:
 
     def batch(self, step: int) -> tuple[Rays, Tensor, torch.Generator]:
         """The rays and target colours of ``step``: a pure function of ``(seed, step)``."""
-        g = torch.Generator().manual_seed(_step_seed(self.seed, step))
-        b = self.cfg.optim.rays_per_batch
-        h, w = self.data.size_hw
-        pick = torch.randint(0, len(self.train_ids), (b,), generator=g).to(self.device)
-        pix = torch.randint(0, h * w, (b,), generator=g).to(self.device)
-        img = self.train_index[pick]
-        v, u = pix // w, pix % w
+        rays, target, _, g = self.batch_with_depth(step)
+        return rays, target, g
+
+    def batch_with_depth(self, step: int) -> tuple[Rays, Tensor, Tensor | None, torch.Generator]:
+        """``batch(step)`` and each ray's target range ``(R,)`` along its unit direction (0: no depth;
+        None unless ``loss.image_depth_weight`` > 0)."""
+        img, v, u, g = self.pixels(step)
         target = self.images[img, v, u].float() / 255.0
         dirs_cam = self._pixel_dirs(img, v, u)
         rays = self._rays(dirs_cam, img)
-        return rays, target, g
+        depth = None
+        if self.depth_z is not None:
+            depth = z_depth_to_range(self.depth_z[img, v, u].float(), dirs_cam[:, 2])
+            depth = torch.where((depth > rays.near) & (depth < rays.far), depth, 0.0)  # what the ray can render
+        return rays, target, depth, g
+
+    def pixels(self, step: int) -> tuple[Tensor, Tensor, Tensor, torch.Generator]:
+        """The training pixels of ``step``: image (frame index), row, column ``(R,)`` each, and the step's
+        generator; uniform over the training images' pixels, or over the pixels their masks keep."""
+        g = torch.Generator().manual_seed(_step_seed(self.seed, step))
+        b = self.cfg.optim.rays_per_batch
+        h, w = self.data.size_hw
+        if self.kept_rows is None:
+            pick = torch.randint(0, len(self.train_ids), (b,), generator=g).to(self.device)
+            pix = torch.randint(0, h * w, (b,), generator=g).to(self.device)
+            return self.train_index[pick], pix // w, pix % w, g
+        # the r-th kept pixel: its (image, row) from the running row counts, then its column in that row
+        r = torch.randint(0, int(self.kept_rows[-1]), (b,), generator=g).to(self.device)
+        row = torch.searchsorted(self.kept_rows, r, right=True)
+        k = r - (self.kept_rows[row] - self.kept_in_row[row])  # the k-th kept pixel of its row
+        img, v = self.train_index[row // h], row % h
+        running = torch.cumsum(self.masks[img, v], -1, dtype=torch.int32)  # (R, W)
+        u = torch.searchsorted(running, (k + 1).to(torch.int32)[:, None])[:, 0]
+        return img, v, u, g
 
     def _pixel_dirs(self, img: Tensor, v: Tensor, u: Tensor) -> Tensor:
         """Camera-axes unit directions ``(R, 3)`` through pixels ``(v, u)`` of images ``img`` (as ``camera_dirs``)."""
@@ -403,13 +474,15 @@ class SceneTrainer:
             g_grid = torch.Generator().manual_seed(_step_seed(self.seed, step, "grid"))
             with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
                 extra["grid_occupied"] = self.model.update_grid(g_grid, all_cells=step < cfg.sampler.grid_warmup_steps)
-        rays, target, g = self.batch(step)
+        rays, target, depth, g = self.batch_with_depth(step)
+        depth_rays = 0 if depth is None else int((depth > 0).sum())
         anneal = self.anneal(step)
         update_proposals = self.proposal_update(step) and not grid
         self.optimizer.zero_grad(set_to_none=True)
         parts = self._parts(len(rays))
         if len(parts) == 1:
-            loss, mse = self._part_loss(step, rays, target, g, anneal, update_proposals, grid, True, 1.0, extra)
+            loss, mse = self._part_loss(step, rays, target, g, anneal, update_proposals, grid, True, 1.0, extra,
+                                        depth, depth_rays)
             self.scaler.scale(loss).backward()
         else:
             params = [q for grp in self.optimizer.param_groups for q in grp["params"] if q.requires_grad]
@@ -418,7 +491,8 @@ class SceneTrainer:
                 g_k = torch.Generator().manual_seed(_step_seed(self.seed, step, f"part{k}"))
                 ex: dict = {}
                 ls, ms = self._part_loss(step, rays[sl], target[sl], g_k, anneal, update_proposals, grid, k == 0,
-                                         (sl.stop - sl.start) / len(rays), ex)
+                                         (sl.stop - sl.start) / len(rays), ex,
+                                         None if depth is None else depth[sl], depth_rays)
                 # with pose refinement the parts' rays share the pose nodes: keep them for the other parts
                 grads = torch.autograd.grad(self.scaler.scale(ls), params, allow_unused=True,
                                             retain_graph=self.pose_refine is not None)
@@ -475,9 +549,12 @@ class SceneTrainer:
         return self._pool
 
     def _part_loss(self, step: int, rays: Rays, target: Tensor, g: torch.Generator, anneal: float,
-                   update_proposals: bool, grid: bool, first: bool, share: float, extra: dict) -> tuple[Tensor, Tensor]:
+                   update_proposals: bool, grid: bool, first: bool, share: float, extra: dict,
+                   depth: Tensor | None = None, depth_rays: int = 0) -> tuple[Tensor, Tensor]:
         """Loss and colour MSE of one part, both scaled by ``share`` (the part's fraction of the batch),
-        so that the parts' values add up to the whole batch's."""
+        so that the parts' values add up to the whole batch's. ``depth``: the part's target ranges
+        (0: none) and ``depth_rays`` the whole batch's rays with depth, for the depth-image term
+        (a sum over the part's rays / depth_rays: the parts' terms add up to the batch's mean)."""
         cfg = self.cfg
         with torch.autocast(self.device.type, dtype=torch.float16, enabled=self.amp):
             out = self.model.render(rays, generator=g, anneal=anneal, proposal_grad=update_proposals,
@@ -514,6 +591,10 @@ class SceneTrainer:
                 loss = loss + cfg.loss.free_space_weight * free
                 extra["free_space"] = share * float(free.detach())
             loss = loss * share if share != 1.0 else loss
+            if depth is not None and depth_rays > 0:
+                d_img = image_depth_loss(out.depth.float(), depth, depth_rays)
+                loss = loss + cfg.loss.image_depth_weight * d_img
+                extra["image_depth"] = float(d_img.detach())
             if first and self.depth_points is not None:  # the sparse-point depth term: whole, in the first part
                 d_rays, d_target = self.depth_batch(step)
                 g_d = torch.Generator().manual_seed(_step_seed(self.seed, step, "depth-jitter"))
@@ -550,8 +631,11 @@ class SceneTrainer:
 
     # ------------------------------------------------------------------ checkpoints
     def meta(self) -> dict[str, Any]:
-        return {"config": config_digest(self.cfg), "data": self.data.digest, "seed": self.seed,
+        meta = {"config": config_digest(self.cfg), "data": self.data.digest, "seed": self.seed,
                 "backend": self.backend, "device": self.device.type}
+        if self.depth_digest is not None:  # the depth images train only with loss.image_depth_weight > 0
+            meta["image_depth"] = self.depth_digest
+        return meta
 
     def state_dict(self) -> dict[str, Any]:
         return {

@@ -11,6 +11,17 @@ per batch when there are many cameras) and the poses.
 Held-out images can be read again at any resolution (``eval_camera``, ``eval_image``): scoring need
 not happen at the training resolution.
 
+Depth and masks, as nerfstudio reads them. A frame's ``depth_file_path`` is a z-depth image: a 16-bit
+PNG (or 8-bit), a float TIFF or EXR (channel ``Z``), or a ``.npy`` array; stored value x the file's
+``depth_unit_scale_factor`` (:func:`nsim.io.transforms_json.depth_unit_scale`: 1 for EXR, nerfstudio's
+1e-3 otherwise, when the key is absent) = depth in the poses' units, and 0 means no depth
+(:meth:`SceneData.read_depth_z`). Held-out scoring reads it at the scored size; depth supervision
+(``loss.image_depth_weight``) keeps it at the training size as float16 (:meth:`SceneData.train_depth_z`,
+2 bytes a pixel: 144 MB for 50 frames of 1600x900), both resized by nearest pixel. A frame's
+``mask_path`` names an image whose 0 pixels are to be ignored (nonzero: kept); masks are read with
+the images and kept as one bool a pixel at the training size (``SceneData.masks``): the trainer
+draws rays from kept pixels only. Held-out scoring ignores masks.
+
 Scale. Poses from ``nsim reconstruct`` are metric unless its ``transforms.json`` (``nsim_metric``,
 ``nsim_scale``) or ``report.json`` (``scale.source``) say otherwise (:func:`poses_scale`). The
 trainer's lengths (near plane, box margin, occupancy cells, obstacle band, ...) are metres; for an
@@ -47,6 +58,7 @@ SCALE_MODES = ("auto", "metric", "arbitrary")
 ROOM_CAMERA_TO_POINT_M = 3.4
 ROOM_CAMERA_SPREAD_M = 2.1
 MAX_SCALE_POINTS = 20_000  # points used for the median (every k-th), so the cost stays bounded
+MAX_DEPTH_PIXELS = 1 << 28  # a .npy depth array larger than this is refused before it is read
 
 
 @dataclass(frozen=True)
@@ -101,6 +113,80 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
     return cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
 
 
+def read_depth_values(path: Path) -> np.ndarray:
+    """The values a depth file stores, ``(H, W)`` float32 (not yet scaled by ``depth_unit_scale_factor``):
+    channel ``Z`` of an EXR, a ``.npy`` array (read without pickles, its size checked before it is
+    loaded), or any single-channel image OpenCV reads at its own bit depth (16-bit PNG, float TIFF).
+    InputError names the file when it is none of these."""
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        from nsim.io.exr import read_depth_exr
+
+        return read_depth_exr(path)
+    if suffix == ".npy":
+        try:
+            values = np.load(path, mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise InputError(f"{path}: not a readable .npy depth array ({e})") from None
+        if values.ndim == 3 and values.shape[2] == 1:
+            values = values[..., 0]
+        if values.ndim != 2 or values.dtype.kind not in "uif" or values.size > MAX_DEPTH_PIXELS:
+            raise InputError(f"{path}: expected an (H, W) numeric depth array of at most {MAX_DEPTH_PIXELS} "
+                             f"values, got {values.dtype} {values.shape}")
+        return np.asarray(values, dtype=np.float32)
+    import cv2
+
+    from nsim.io.images import _decode  # the same file checks as every image nsim reads
+
+    values = _decode(path, cv2.IMREAD_UNCHANGED)
+    if values.ndim == 3 and values.shape[2] == 1:
+        values = values[..., 0]
+    if values.ndim != 2 or values.dtype.kind not in "uf":
+        raise InputError(f"{path}: expected a single-channel depth image (16-bit PNG, float TIFF), "
+                         f"got {values.dtype} with shape {values.shape}")
+    return values.astype(np.float32)
+
+
+def scaled_depth(values: np.ndarray, scale: float) -> np.ndarray:
+    """Depth ``(H, W)`` float32 in the poses' units from stored ``values`` and ``depth_unit_scale_factor``:
+    ``values x scale`` (in float64, then rounded once), with a stored 0 or less meaning no depth (NaN);
+    non-finite values (an EXR's inf, no hit) stay as they are."""
+    depth = (np.asarray(values, dtype=np.float64) * scale).astype(np.float32)
+    depth[values <= 0] = np.nan
+    return depth
+
+
+def read_mask(path: Path) -> np.ndarray:
+    """A nerfstudio mask ``(H, W)`` bool: True where the pixel is kept (nonzero; in an RGB mask, any channel)."""
+    import cv2
+
+    from nsim.io.images import _decode
+
+    mask = _decode(path, cv2.IMREAD_UNCHANGED)
+    if mask.ndim == 3 and mask.shape[2] in (1, 3):
+        return (mask != 0).any(-1)
+    if mask.ndim != 2:
+        raise InputError(f"{path}: expected a single-channel (or RGB) mask, got shape {mask.shape}")
+    return mask != 0
+
+
+def resize_mask(mask: np.ndarray, image_wh: tuple[int, int], width: int, height: int) -> np.ndarray:
+    """``mask (h, w)`` bool of an image of size ``image_wh`` as the mask of that image shrunk to
+    ``(height, width)``: first brought to the image's own size by nearest pixel (a mask of another
+    size), then a training pixel is kept only when every image pixel it averages
+    (``cv2.INTER_AREA``, as :func:`resize_image`) is kept, so that no ignored pixel's colour leaks
+    into a training pixel."""
+    import cv2
+
+    mask = np.ascontiguousarray(mask, dtype=np.uint8)
+    if (mask.shape[1], mask.shape[0]) != tuple(image_wh):
+        mask = cv2.resize(mask, tuple(image_wh), interpolation=cv2.INTER_NEAREST_EXACT)
+    if (mask.shape[1], mask.shape[0]) == (width, height):
+        return mask.astype(bool)
+    covered = cv2.resize(mask.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)
+    return covered >= 1.0 - 1e-5
+
+
 def poses_scale(root: Path, extra: dict[str, Any]) -> tuple[str | None, bool]:
     """What the poses say about their scale: (source, metric). transforms.json's ``nsim_metric`` when it
     is there; else the source (``report.json``'s ``scale.source``, else transforms.json's ``nsim_scale``)
@@ -127,10 +213,13 @@ class SceneData:
     images: (N, H, W, 3) uint8; cam_to_world: (N, 4, 4) float64 OpenCV axes; cameras: the distinct
     intrinsics at the training resolution, camera_index: (N,) which one each frame uses (all the same
     size); full_cameras: the same intrinsics at the images' own resolution; image_paths: the image
-    files (for scoring at another resolution); depth_paths: per frame the z-depth EXR or None;
-    points_xyz: (P, 3) sparse points or None. max_image_side: what the images were shrunk to (0: not).
-    scale_source: what the poses artifact says about its scale (None: nothing); metric: whether
-    lengths are metres. digest: of the original images, poses and intrinsics (not of the shrinking).
+    files (for scoring at another resolution); depth_paths: per frame the z-depth file or None, whose
+    values x depth_unit_scale are in the poses' units; points_xyz: (P, 3) sparse points or None.
+    max_image_side: what the images were shrunk to (0: not). masks: (N, H, W) bool at the training
+    resolution, True where a pixel may train (None: no frame has a mask: every pixel);
+    mask_paths: per frame the mask file or None. scale_source: what the poses artifact says about
+    its scale (None: nothing); metric: whether lengths are metres. digest: of the original images,
+    poses and intrinsics, and of the masks when there are any (not of the shrinking).
     """
 
     root: Path
@@ -147,6 +236,9 @@ class SceneData:
     max_image_side: int = 0
     scale_source: str | None = None
     metric: bool = True
+    depth_unit_scale: float = 1.0
+    masks: np.ndarray | None = None
+    mask_paths: list[Path | None] | None = None
 
     @classmethod
     def load(cls, root: str | os.PathLike, points_file: str | None = None, max_image_side: int = 0,
@@ -154,12 +246,16 @@ class SceneData:
         """Read ``root/transforms.json`` and its images (shrunk to ``max_image_side``, 0: as they are);
         ``scale`` as ``DataConfig.scale``. InputError names the file on problems."""
         from nsim.io.images import read_image
-        from nsim.io.transforms_json import read_transforms
+        from nsim.io.transforms_json import depth_unit_scale, read_transforms
 
         root = Path(root)
         data = read_transforms(root / "transforms.json")
         if not data.frames:
             raise InputError(f"{root / 'transforms.json'}: frames: no frames")
+        depth_files = [f.depth_file_path for f in data.frames if f.depth_file_path]
+        depth_scale = depth_unit_scale(root / "transforms.json", data, depth_files) if depth_files else 1.0
+        mask_paths = [root / f.mask_path if f.mask_path else None for f in data.frames]
+        masks = None
         full_cameras, camera_index, names, depth_paths, paths = [], [], [], [], []
         size = (data.frames[0].camera.width, data.frames[0].camera.height)
         h = hashlib.sha256()
@@ -184,6 +280,12 @@ class SceneData:
                 images = np.empty((len(data.frames), small.height, small.width, 3), np.uint8)
             images[i] = resize_image(img, small.width, small.height)
             del img
+            if mask_paths[i] is not None:
+                if masks is None:
+                    masks = np.ones((len(data.frames), small.height, small.width), bool)
+                mask = read_mask(mask_paths[i])
+                h.update(np.packbits(mask).tobytes() + repr(mask.shape).encode())
+                masks[i] = resize_mask(mask, (cam.width, cam.height), small.width, small.height)
             names.append(frame.file_path)
             paths.append(root / frame.file_path)
             depth_paths.append(root / frame.depth_file_path if frame.depth_file_path else None)
@@ -202,7 +304,8 @@ class SceneData:
         return cls(root, names, images, np.stack([f.cam_to_world for f in data.frames]),
                    [camera_at(c, max_image_side) for c in full_cameras], np.asarray(camera_index), depth_paths,
                    points, h.hexdigest(), full_cameras=full_cameras, image_paths=paths, max_image_side=max_image_side,
-                   scale_source=source, metric=metric)
+                   scale_source=source, metric=metric, depth_unit_scale=depth_scale, masks=masks,
+                   mask_paths=mask_paths)
 
     @property
     def n_frames(self) -> int:
@@ -229,12 +332,20 @@ class SceneData:
             raise ValueError("SceneData without image_paths cannot be resized")
         from nsim.io.images import read_image
 
-        images = np.empty((self.n_frames, cameras[0].height, cameras[0].width, 3), np.uint8)
+        width, height = cameras[0].width, cameras[0].height
+        images = np.empty((self.n_frames, height, width, 3), np.uint8)
         for i, path in enumerate(self.image_paths):
-            images[i] = resize_image(read_image(path), cameras[0].width, cameras[0].height)
+            images[i] = resize_image(read_image(path), width, height)
+        masks = None
+        if self.masks is not None:
+            masks = np.ones((self.n_frames, height, width), bool)
+            for i, path in enumerate(self.mask_paths or []):
+                if path is not None:
+                    masks[i] = resize_mask(read_mask(path), (full[0].width, full[0].height), width, height)
         from dataclasses import replace
 
-        return replace(self, images=images, cameras=cameras, full_cameras=full, max_image_side=max_image_side)
+        return replace(self, images=images, cameras=cameras, full_cameras=full, max_image_side=max_image_side,
+                       masks=masks)
 
     def split(self, holdout_every: int) -> tuple[np.ndarray, np.ndarray]:
         """(train indices, held-out indices): frame i is held out when ``i % holdout_every == 0``."""
@@ -247,12 +358,32 @@ class SceneData:
         return idx[~held], idx[held]
 
     def read_depth_z(self, i: int) -> np.ndarray | None:
-        """Ground-truth z-depth (H, W) of frame i at the images' own resolution, or None when the frame has none."""
+        """Frame i's z-depth ``(h, w)`` float32 in the poses' units (stored value x ``depth_unit_scale``; NaN
+        where it stores 0, no depth) at the depth file's own resolution, or None when the frame has none.
+        (nsim's captures write their depth at the images' resolution; PolyCam's and Record3D's is smaller.)"""
         if self.depth_paths[i] is None:
             return None
-        from nsim.io.exr import read_depth_exr
+        return scaled_depth(read_depth_values(self.depth_paths[i]), self.depth_unit_scale)
 
-        return read_depth_exr(self.depth_paths[i])
+    def train_depth_z(self, frames) -> np.ndarray | None:
+        """The z-depth of ``frames`` (indices) at the training resolution, for depth supervision:
+        ``(N, H, W)`` float16 over all N frames (nearest pixel), 0 where there is no depth (no file, a
+        frame not in ``frames``, a stored 0, non-finite, or beyond float16's range). None when none of
+        ``frames`` has a depth pixel."""
+        height, width = self.size_hw
+        out = None
+        for i in frames:
+            depth = self.read_depth_z(int(i))
+            if depth is None:
+                continue
+            depth = resize_depth(depth, width, height)
+            with np.errstate(invalid="ignore", over="ignore"):
+                z = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float16)
+            z[~np.isfinite(z)] = 0.0  # beyond float16's 65504
+            if out is None:
+                out = np.zeros((self.n_frames, height, width), np.float16)
+            out[int(i)] = z
+        return None if out is None or not out.any() else out
 
     # ------------------------------------------------------------------ scoring at any resolution
     def eval_camera(self, i: int, image_side: int):
