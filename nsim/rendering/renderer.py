@@ -19,7 +19,9 @@ Two ways to render the same model:
     faint haze, and a thousand samples of weight 5e-5 each add up to 0.05 of the pixel (a
     1e-4 threshold cost 36 dB against the dense image on the default test room).
 
-Every entry point returns a :class:`~nsim.rendering.model.RenderOutput`; with
+Every entry point returns a :class:`~nsim.rendering.model.RenderOutput`. ``render_rays`` keeps
+only its per-ray fields (rgb, depth, depth_median, accumulation, background: 36 bytes a ray), chunk
+by chunk, so a 1920x1080 view does not hold gigabytes of per-sample output; with
 ``return_samples=True`` it carries the per-sample ``(t_starts, t_ends, sigma, rgb)`` of the
 samples that were evaluated, so a later renderer can merge them with another field's samples
 along the same rays (``nsim.rendering.model.composite``).
@@ -194,21 +196,67 @@ def render_rays(model: SceneModel, rays: Rays, method: str = AUTO, grid: Occupan
 
     method: ``proposal``, ``march`` (with ``grid`` if given; without it every sample is
     evaluated), or ``auto``: ``march`` when a grid is given, else ``proposal``.
+
+    Returns the per-ray outputs only -- rgb, depth, depth_median, accumulation, background -- each
+    chunk's copied into arrays for all ``R`` rays as soon as it is rendered and the rest of it (weights,
+    bins, proposal weights: about 1 KB a ray) dropped, so memory grows by some 40 bytes a ray, not by
+    a chunk's whole output per chunk; ``weights`` is then None. With ``return_samples`` the samples
+    and weights of every ray are kept (padded to the longest chunk's), as a merging renderer needs.
+    The values are those of the chunks, bit for bit, whichever way they are kept.
     """
     if method == AUTO:
         method = "march" if grid is not None else "proposal"
     if method not in METHODS:
         raise ValueError(f"render_rays: method must be one of {METHODS}, got {method!r}")
+    if chunk < 1:
+        raise ValueError(f"render_rays: chunk must be >= 1, got {chunk}")
     model.eval()
-    outs = []
+    n = len(rays)
+    if n == 0:
+        return _no_rays(rays, return_samples)
+
+    def one(a: int) -> RenderOutput:
+        sub = rays[a : a + chunk]
+        if method == "proposal":
+            return model.render(sub, appearance=appearance, return_samples=return_samples)
+        return march(model, sub, grid, march_cfg, appearance, return_samples)
+
     with torch.no_grad():
-        for a in range(0, len(rays), chunk):
-            sub = rays[a : a + chunk]
-            if method == "proposal":
-                outs.append(model.render(sub, appearance=appearance, return_samples=return_samples))
-            else:
-                outs.append(march(model, sub, grid, march_cfg, appearance, return_samples))
-    return _concat(outs)
+        if return_samples:
+            return _concat([one(a) for a in range(0, n, chunk)])
+        out: RenderOutput | None = None
+        for a in range(0, n, chunk):
+            o = one(a)
+            if out is None:
+                out = _per_ray_like(o, n)
+            for f in PER_RAY_FIELDS:
+                src = getattr(o, f)
+                if src is not None:
+                    getattr(out, f)[a : a + len(src)] = src
+            del o  # the chunk's per-sample tensors go before the next chunk is rendered
+    return out
+
+
+# what render_rays keeps of each chunk without return_samples (RenderOutput fields, one row a ray)
+PER_RAY_FIELDS = ("rgb", "depth", "depth_median", "accumulation", "background")
+
+
+def _no_rays(rays: Rays, return_samples: bool) -> RenderOutput:
+    """The output for no rays (the samplers need at least one)."""
+    z = rays.near.new_zeros(0)
+    z3 = rays.near.new_zeros(0, 3)
+    samples = RaySamples(z[:, None], z[:, None], z[:, None], z3[:, None]) if return_samples else None
+    return RenderOutput(rgb=z3, depth=z, depth_median=z.clone(), accumulation=z.clone(), background=z3.clone(),
+                        weights=z[:, None] if return_samples else None, samples=samples)
+
+
+def _per_ray_like(o: RenderOutput, n: int) -> RenderOutput:
+    """Empty per-ray arrays for ``n`` rays shaped, typed and placed like chunk output ``o``'s."""
+
+    def like(t: Tensor | None) -> Tensor | None:
+        return None if t is None else torch.empty((n, *t.shape[1:]), dtype=t.dtype, device=t.device)
+
+    return RenderOutput(**{f: like(getattr(o, f)) for f in PER_RAY_FIELDS}, weights=None)
 
 
 def _pad_cat(tensors: list[Tensor], fill: float) -> Tensor:

@@ -73,10 +73,8 @@ from nsim.train.scene_eval import (
     EvalConfig,
     ViewRays,
     abs_rel,
-    mean_scores,
-    protocol,
     render_image,
-    score_view,
+    score_views,
 )
 
 log = logging.getLogger(__name__)
@@ -724,30 +722,16 @@ class SceneTrainer:
         ``*_half`` scores (``nsim.train.scene_eval``). ``image_dir``: each render beside its ground
         truth is written there (``frame_NNNNN.png``) as it is scored, so no image is kept.
         Returns ``views`` (one row each), ``mean``, ``resolution`` and ``protocol``."""
-        from nsim.io.images import to_uint8, write_image
-
         views = list(self.eval_ids) if views is None else views
-        ecfg = self.cfg.eval
-        rows = []
-        scored = None
-        for i in views:
-            camera = self.data.eval_camera(i, ecfg.image_side)
-            scored = [camera.width, camera.height]
-            gt = self.data.eval_image(i, camera)
-            save = None
-            if image_dir is not None:
-                def save(rgb, i=i, gt=gt):
-                    write_image(Path(image_dir) / f"frame_{i:05d}.png", np.concatenate([to_uint8(rgb), gt], axis=1))
-            g = torch.Generator().manual_seed(_step_seed(self.seed, int(i), "eval-fit"))
-            row = score_view(self.model, self.view_rays(i, camera), gt, self.data.eval_depth_z(i, camera),
-                             self.cfg.output.render_chunk_rays, ecfg, final, g, self._thread_pool(), save)
-            rows.append({"frame": int(i), "name": self.data.names[i], **row})
+        out = score_views(self.model, self.data, views, self.cfg.eval, self.cfg.output.render_chunk_rays,
+                          lambda i: torch.Generator().manual_seed(_step_seed(self.seed, i, "eval-fit")), final,
+                          self._thread_pool(), image_dir)
         h, w = self.data.size_hw
-        fh, fw = self.data.full_size_hw
-        return {"views": rows, "mean": mean_scores(rows),
-                "resolution": {"scored_wh": scored, "trained_wh": [w, h], "captured_wh": [fw, fh],
-                               "eval.image_side": ecfg.image_side, "data.max_image_side": self.cfg.data.max_image_side},
-                "protocol": protocol(ecfg, "with a generator seeded by (seed, frame)")}
+        res = out["resolution"]
+        out["resolution"] = {"scored_wh": res["scored_wh"], "trained_wh": [w, h], "captured_wh": res["captured_wh"],
+                             "eval.image_side": res["eval.image_side"],
+                             "data.max_image_side": self.cfg.data.max_image_side}
+        return out
 
 
 # ====================================================================== metrics (image and depth)

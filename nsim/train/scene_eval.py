@@ -26,6 +26,11 @@ others keep their mean-embedding colour). The scored right half is coloured the 
 samples of the mean-embedding render, recolouring every sample with a coefficient of at least
 ``1e-6``: the renderer's colour under the fitted code to within ``S * 1e-6`` (S samples a ray), from
 the same pass (tests compare both with the renderer).
+
+Frames of a scene. :func:`score_views` scores held-out frames of a :class:`~nsim.train.scene_data.SceneData`
+with a model at any ``EvalConfig.image_side``: the trainer's end-of-training scores, or a published
+scene-checkpoint scored again later at another resolution (``bench/real_capture.py --score-side``)
+with the same views, seeds and protocol.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import math
 from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -308,6 +314,43 @@ def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: n
         row["psnr_half_mean_embedding"] = psnr(pred["rgb"][:, half:], gt[:, half:])
         row["appearance_fit_shift"] = float(torch.linalg.vector_norm(code - mean_code))
     return row
+
+
+def frame_view(model: SceneModel, cam_to_world, camera) -> ViewRays:
+    """What renders a frame at its pose ``cam_to_world (4, 4)`` (OpenCV axes) through ``camera`` (any
+    size): the model's own ray range (``sampler.near_m / far_m``) and, when it clips rays to its box, the box."""
+    s = model.sampler_cfg
+    c2w = torch.as_tensor(np.asarray(cam_to_world), dtype=torch.float32).cpu()
+    return ViewRays(camera, c2w, s.near_m, s.far_m, model.aabb if s.clip_rays_to_box else None)
+
+
+def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chunk: int,
+                fit_generator: Callable[[int], torch.Generator], final: bool = True, pool: Executor | None = None,
+                image_dir: Path | None = None, seed_note: str = "with a generator seeded by (seed, frame)") -> dict[str, Any]:
+    """Scores of frames ``views`` of ``data`` (:class:`~nsim.train.scene_data.SceneData`) at
+    ``cfg.image_side`` (0: as captured), one view at a time (:func:`score_view`; the ground truth read
+    again at that size). ``fit_generator(frame)``: the generator of that frame's fit pixels.
+    ``image_dir``: each render beside its ground truth is written there (``frame_NNNNN.png``).
+    Returns ``views`` (one row each), ``mean``, ``resolution`` (scored and captured ``[w, h]``) and ``protocol``."""
+    from nsim.io.images import to_uint8, write_image
+
+    rows = []
+    scored = None
+    for i in views:
+        camera = data.eval_camera(i, cfg.image_side)
+        scored = [camera.width, camera.height]
+        gt = data.eval_image(i, camera)
+        save = None
+        if image_dir is not None:
+            def save(rgb, i=i, gt=gt):
+                write_image(Path(image_dir) / f"frame_{i:05d}.png", np.concatenate([to_uint8(rgb), gt], axis=1))
+        row = score_view(model, frame_view(model, data.cam_to_world[i], camera), gt, data.eval_depth_z(i, camera),
+                         chunk, cfg, final, fit_generator(int(i)), pool, save)
+        rows.append({"frame": int(i), "name": data.names[i], **row})
+    fh, fw = data.full_size_hw
+    return {"views": rows, "mean": mean_scores(rows),
+            "resolution": {"scored_wh": scored, "captured_wh": [fw, fh], "eval.image_side": cfg.image_side},
+            "protocol": protocol(cfg, seed_note)}
 
 
 def mean_scores(rows: list[dict[str, Any]]) -> dict[str, float]:
