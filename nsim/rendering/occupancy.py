@@ -8,8 +8,10 @@ sample points is not lost. The marching renderer skips samples in free cells; wi
 threshold whose integral over the skipped path is negligible it renders the same image.
 
 ``obstacle_map`` is the 2D map a ground robot and the crowd simulator need (``ObstacleMap``):
-a cell of the floor plan is *occupied* when the density anywhere in the height band
-``[z_lo, z_hi]`` above it exceeds the threshold, *unknown* when no training camera saw into it
+a cell of the floor plan is *occupied* when, somewhere in the height band ``[z_lo, z_hi]`` above
+it, the training views' rays stop (their half-transmittance points), or the density exceeds the
+threshold where no training ray went through and on (haze is carved away as a depth sensor's
+occupancy mapper carves free space); *unknown* when no training camera saw into it
 (``observed_columns``), else *free*. Nobody walks where it is occupied or unknown (unless
 asked to: ``unknown_walkable``). ``ObstacleMap.regions`` traces those cells as polygons with
 holes (``regions_from_mask``: a ring of walls around a free room is a polygon whose hole is the
@@ -413,28 +415,45 @@ def opaque_range(sigma: Tensor, lo: Tensor, hi: Tensor, origins: Tensor, dirs: T
     return out
 
 
+HIT_MIN_RAYS = 2
+"""Rays of the training views that must stop in a band cell (``observed_columns``' hits) to make it occupied."""
+HIT_DEPTH_CELLS = 1.0
+"""How far past the half-transmittance point a ray's stop is taken (in cells): into the matter it met, not in front."""
+
+
 @torch.no_grad()
 def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi: np.ndarray,
-                     band_layers: tuple[int, int], views: CameraViews, depth_width_px: int = 64,
-                     surface_tolerance_cells: float = 2.0) -> np.ndarray:
-    """Which columns ``(X, Y)`` of the density grid ``sigma (X, Y, Z)`` (1/m, over the box ``[lo, hi]``) some view saw into.
+                     band_layers: tuple[int, int], views: CameraViews, depth_width_px: int = 128,
+                     surface_tolerance_cells: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the training views saw of the band layers ``[k0, k1)`` of the density grid ``sigma (X, Y, Z)``
+    (1/m, constant per cell, over the box ``[lo, hi]``): ``(observed (X, Y) bool, carved (X, Y, K) bool,
+    hits (X, Y, K) int32)``, ``K = k1 - k0``.
 
-    The rule (a cell no training ray could have reached is unknown): per view, a depth map at
-    ``depth_width_px`` wide (the camera scaled down) holds the range at which each pixel ray's
-    transmittance falls to 1/2 (``opaque_range``: the median depth the NeRF renders; steps of half
-    a cell from ``near_m`` to ``far_m``), eroded by the 3 x 3 minimum so that a cell glimpsed past
-    a silhouette at this coarse resolution is not counted. A cell of the band layers ``[k0, k1)``
-    is seen by the view when it projects into the image and its centre lies within
-    ``[near_m, far_m]`` and nearer than that depth (a cell above ``density_threshold``: within
-    ``surface_tolerance_cells`` cell diagonals behind it, as the surface the ray stopped at). A
-    column is observed when any view saw any of its band cells. Only the density grid, the poses
-    and the intrinsics enter, without randomness: the same inputs give the same map.
+    Per view, a depth map ``depth_width_px`` wide (the camera scaled down) holds the range at which
+    each pixel ray's transmittance falls to 1/2 (``opaque_range``: the median depth the NeRF renders;
+    steps of half a cell from ``near_m`` to ``far_m``).
+
+    * *observed*: a column is observed when some view saw one of its band cells: the cell projects
+      into the image, its centre lies within ``[near_m, far_m]`` and nearer than that depth eroded
+      by the 3 x 3 minimum (a cell glimpsed past a silhouette at this coarse resolution is not
+      counted); a cell above ``density_threshold`` may lie up to ``surface_tolerance_cells`` cell
+      diagonals behind it, as the surface the ray stopped at.
+    * *carved*: some view's rays went through the cell and on (its centre nearer than the eroded
+      depth), as an occupancy mapper carves free space along a depth ray: whatever density the
+      cell holds did not stop light, so it is haze a NeRF left in the air, not matter.
+    * *hits*: how many of the views' pixel rays stopped in the cell: the ray's half-transmittance
+      point, taken ``HIT_DEPTH_CELLS`` cells further along the ray (into what stopped it). A thin
+      surface (a table top) that point samples of the density miss still stops rays.
+
+    Only the density grid, the poses and the intrinsics enter, without randomness: the same inputs
+    give the same map.
     """
     device = sigma.device
     X, Y, Z = sigma.shape
     lo_t = torch.as_tensor(lo, dtype=torch.float32, device=device)
     hi_t = torch.as_tensor(hi, dtype=torch.float32, device=device)
-    cell = (hi_t - lo_t) / torch.tensor([X, Y, Z], dtype=torch.float32, device=device)
+    shape = torch.tensor([X, Y, Z], device=device)
+    cell = (hi_t - lo_t) / shape.float()
     k0, k1 = band_layers
     ii, jj, kk = torch.meshgrid(torch.arange(X, device=device), torch.arange(Y, device=device),
                                 torch.arange(k0, k1, device=device), indexing="ij")
@@ -444,12 +463,12 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
     is_dense = sigma[ijk[:, 0], ijk[:, 1], ijk[:, 2]] > density_threshold
     slack = float(surface_tolerance_cells) * float(torch.linalg.vector_norm(cell))
     seen = torch.zeros(X * Y, dtype=torch.bool, device=device)
-    remaining = torch.arange(len(centres), device=device)
+    carved = torch.zeros(len(centres), dtype=torch.bool, device=device)
+    hits = torch.zeros(X * Y * (k1 - k0), dtype=torch.int32, device=device)
+    remaining = torch.arange(len(centres), device=device)  # the cells not carved yet
     step_m = 0.5 * float(cell.min())
     small_cams = {}
     for n in range(len(views.cam_to_world)):
-        if remaining.numel() == 0:
-            break
         ci = int(views.camera_index[n])
         if ci not in small_cams:
             cam = views.cameras[ci]
@@ -462,9 +481,19 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
         rot, origin = c2w[:3, :3], c2w[:3, 3]
         ok_dir = torch.isfinite(dirs_cam).all(-1).reshape(-1)
         d_world = torch.nn.functional.normalize(dirs_cam.reshape(-1, 3)[ok_dir] @ rot.T, dim=-1)
+        stop = opaque_range(sigma, lo_t, hi_t, origin.expand_as(d_world), d_world, views.near_m, views.far_m, step_m)
+        # hits: where the rays stopped, one cell into the matter, counted per band cell
+        stopped = torch.isfinite(stop)
+        end = origin + (stop[stopped, None] + HIT_DEPTH_CELLS * float(cell.min())) * d_world[stopped]
+        e = torch.floor((end - lo_t) / cell).long()
+        inb = ((e >= 0) & (e < shape)).all(-1) & (e[:, 2] >= k0) & (e[:, 2] < k1)
+        e = e[inb]
+        hits.index_add_(0, (e[:, 0] * Y + e[:, 1]) * (k1 - k0) + e[:, 2] - k0,
+                        torch.ones(len(e), dtype=torch.int32, device=device))
+        if remaining.numel() == 0:
+            continue
         depth = torch.zeros(h * w, device=device)  # a pixel the model cannot unproject sees nothing
-        depth[ok_dir] = opaque_range(sigma, lo_t, hi_t, origin.expand_as(d_world), d_world, views.near_m,
-                                     views.far_m, step_m)
+        depth[ok_dir] = stop
         depth = -torch.nn.functional.max_pool2d(-depth.view(1, 1, h, w), 3, stride=1, padding=1)[0, 0]
         rel = centres[remaining] - origin
         rng = torch.linalg.vector_norm(rel, dim=-1)
@@ -472,25 +501,30 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
         u = torch.round(uv[:, 0]).long().clamp(0, w - 1)
         v = torch.round(uv[:, 1]).long().clamp(0, h - 1)
         reach = depth[v, u]
+        ok = inside & (rng >= views.near_m) & (rng <= views.far_m)
         nearer = torch.where(is_dense[remaining], rng <= reach + slack, rng < reach)
-        ok = inside & nearer & (rng >= views.near_m) & (rng <= views.far_m)
-        seen[column[remaining[ok]]] = True
-        remaining = remaining[~seen[column[remaining]]]
-    return seen.view(X, Y).cpu().numpy()
+        seen[column[remaining[ok & nearer]]] = True
+        carved[remaining[ok & (rng < reach)]] = True
+        remaining = remaining[~carved[remaining]]
+    return (seen.view(X, Y).cpu().numpy(), carved.view(X, Y, k1 - k0).cpu().numpy(),
+            hits.view(X, Y, k1 - k0).cpu().numpy())
 
 
 @torch.no_grad()
 def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple[float, float], cell_m: float,
                  density_threshold: float, samples_per_cell: int = 2, generator: torch.Generator | None = None,
                  chunk: int = 1 << 16, device: str | torch.device = "cpu", views: CameraViews | None = None,
-                 depth_width_px: int = 64) -> ObstacleMap:
+                 depth_width_px: int = 128) -> ObstacleMap:
     """2D obstacles over the scene box's xy extent: density above ``density_threshold`` in the height band.
 
     With ``views`` (the training cameras), also which cells were observed (``observed_columns``):
     the density is sampled on a column grid that reaches from the band to the cameras' heights
     (within the box), so that whatever stands between a camera and the band occludes it.
-    Occupied is the density alone; observed follows the transmittance (faint haze above the
-    threshold is an obstacle, yet does not hide what lies behind it).
+    With views, a band cell is occupied when at least ``HIT_MIN_RAYS`` of the views' rays stopped
+    in it, or when its density is above the threshold and no view's rays went through it and on
+    (``observed_columns``: hits and carving; a thin table top stops rays though point samples of
+    its density miss it, and haze that rays cross is not matter); without views, the density
+    alone decides. Observed follows the transmittance.
     """
     aabb_np = np.asarray(torch.as_tensor(aabb).cpu(), dtype=np.float64)
     z_lo, z_hi = float(band_m[0]), float(band_m[1])
@@ -510,10 +544,13 @@ def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple
     hi = np.array([aabb_np[0, 0] + nx * cell_m, aabb_np[0, 1] + ny * cell_m, z_hi + above * dz])
     dens = max_density_on_grid(density_fn, lo, hi, (nx, ny, below + nz + above), samples_per_cell, generator,
                                chunk, device)
-    occupied = (dens[:, :, below : below + nz] > density_threshold).any(-1).cpu().numpy()
+    dense = (dens[:, :, below : below + nz] > density_threshold).cpu().numpy()
     observed = None
     if views is not None:
-        observed = observed_columns(dens, density_threshold, lo, hi, (below, below + nz), views, depth_width_px)
+        observed, carved, hits = observed_columns(dens, density_threshold, lo, hi, (below, below + nz), views,
+                                                  depth_width_px)
+        dense = (dense & ~carved) | (hits >= HIT_MIN_RAYS)
+    occupied = dense.any(-1)
     return ObstacleMap((float(lo[0]), float(lo[1])), float(cell_m), occupied, (z_lo, z_hi), observed)
 
 

@@ -168,8 +168,9 @@ class OutputConfig:
     occupancy_samples_per_cell: int = param(2, ge=1, le=64)
     obstacle_band_m: tuple[float, float] = (0.1, 1.0)
     obstacle_cell_m: float = param(0.05, gt=0.0)
-    obstacle_density: float = param(0.05, gt=0.0, help="density (1/m) above which a cell of the 2D obstacle map "
-                                    "is an obstacle (the simulator's walls: haze must not count)")
+    obstacle_density: float = param(1.0, gt=0.0, help="density (1/m) above which a cell of the 2D obstacle map "
+                                    "is an obstacle unless training rays went through it (haze is carved away); "
+                                    "cells where training rays stop are obstacles whatever the density")
     render_chunk_rays: int = param(8192, ge=1)
     occupancy_max_cells: int = param(1 << 23, ge=1, help="the 3D grid's cells at most (its cells grow to fit): "
                                      "bounds the bake's memory (~60 B a cell) and time for a large box")
