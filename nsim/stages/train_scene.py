@@ -133,6 +133,7 @@ def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind:
             **summary,
         })
         out.timing["train_seconds"] = round(result.trainer.train_seconds, 2)
+        out.timing["post_train_phases_s"] = dict(result.post_train_seconds)
         if result.resumed_from is not None:
             out.timing["resumed_from_step"] = result.resumed_from
     return out.ref

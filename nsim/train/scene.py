@@ -761,6 +761,7 @@ class TrainResult:
     trainer: SceneTrainer
     resumed_from: int | None
     evaluation: dict[str, Any] | None = None
+    post_train_seconds: dict[str, float] = field(default_factory=dict)  # export_scene's phases (not in any file)
 
     @property
     def model(self) -> SceneModel:
@@ -942,6 +943,8 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
                   "aabb_min": aabb[0], "aabb_max": aabb[1], "near": cfg.sampler.near_m, "far": cfg.sampler.far_m,
                   "units_per_m_guess": trainer.units_per_m}
     (out_dir / "bounds.json").write_text(json.dumps(bounds, indent=1) + "\n")
+    phases = result.post_train_seconds
+    t0 = time.perf_counter()
     grid = bake_occupancy(trainer)
     grid.save(out_dir / "occupancy_grid.npy")
     if not data.metric:  # the grid's own JSON says metres; its box key stays for OccupancyGrid.load
@@ -950,15 +953,20 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
         (out_dir / "occupancy_grid.json").write_text(json.dumps(meta, indent=1) + "\n")
     # obstacles.json = occupancy.json (polygons with holes, read by nsim simulate), obstacles.png,
     # obstacle_cells.npy / .png (free / occupied / unknown) and the nav2 map map.yaml + map.pgm
+    phases["occupancy_grid"] = round(time.perf_counter() - t0, 2)
+    t0 = time.perf_counter()
     bake_obstacles(trainer).save(out_dir, units="m" if data.metric else "arbitrary")
+    phases["walkable_map"] = round(time.perf_counter() - t0, 2)
     history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
     plot_curves(out_dir / "curves.png", history)
     (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
     views = _spread(list(trainer.eval_ids), cfg.output.final_eval_views)
     summary: dict[str, Any] = {"steps": trainer.step, "occupied_fraction": grid.occupied_fraction}
     if views:
+        t0 = time.perf_counter()
         (out_dir / "eval").mkdir(exist_ok=True)
         ev = trainer.evaluate(views, final=True, image_dir=out_dir / "eval")
+        phases["heldout_scores"] = round(time.perf_counter() - t0, 2)
         (out_dir / "eval.json").write_text(json.dumps({
             "resolution": ev["resolution"], "protocol": ev["protocol"], "views": ev["views"], "mean": ev["mean"],
             "constant_color_psnr": constant_color_psnr(data, cfg.data.holdout_every)}, indent=1) + "\n")
