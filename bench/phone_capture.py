@@ -7,7 +7,9 @@ The test room filmed twice along the same path: by the renderer (``capture synth
 preset) and as a phone films it (``--preset phone``: exposure and white-balance drift, noise,
 motion blur, rolling shutter, vignetting, JPEG; ground truth unchanged). Each goes through what a
 user runs: ``nsim reconstruct`` (SfM on the frames, metric from the capture's ground-truth
-trajectory as a robot's odometry), then ``nsim train-scene --preset cpu`` on those poses. Reports
+trajectory as a robot's odometry), then ``nsim train-scene --preset cpu`` on those poses; the clean
+capture trains on its exact poses (``--clean-poses gt``, the default: the stricter reference, and
+the same scene as ``bench/walkable_map.py``'s) or goes through reconstruct too (``sfm``). Reports
 per capture: frames registered of given, pose agreement with the ground truth after Sim(3), the
 training seconds, held-out PSNR with the mean appearance embedding and with the half-image
 protocol (the embedding fitted on the left half, the right half scored), and the gap between the
@@ -36,22 +38,24 @@ from nsim.workspace.store import Store  # noqa: E402
 
 
 def one_capture(ws: Path, log: Path, preset: str, room: str, quick: bool, train_preset: str,
-                steps: int | None) -> dict[str, Any]:
+                steps: int | None, sfm: bool = True) -> dict[str, Any]:
     sets = ["--set", "n_frames=100", "--set", "width=160", "--set", "height=120", "--set", "video=false"] if quick else []
     cap, cap_s, _ = nsim(ws, "capture", "synth", "--preset", preset, "--room", room, *sets,
                          "--tag", f"capture/{preset}-{room}", log=log)
     store = Store(ws)
     cap_dir = store.get(cap).path
     n_frames = store.get(cap).manifest["config"]["n_frames"]
-    poses, rec_s, _ = nsim(ws, "reconstruct", cap, "--reference", str(cap_dir / "gt_trajectory.tum"),
-                           "--frames", str(n_frames), "--tag", f"poses/{preset}-{room}", log=log)
-    report = json.loads(store.get(poses).file("report.json").read_text())
-    given = report.get("images_given", report.get("frames_given"))
-    used = report.get("images_registered", report.get("frames", given))
-    row: dict[str, Any] = {"capture": cap[:12], "capture_s": round(cap_s, 1), "poses": poses[:12],
-                           "reconstruct_s": round(rec_s, 1), "images_given": given, "images_registered": used,
-                           "registered_fraction": round(used / given, 4) if given else None}
-    row.update(pose_agreement(estimated_poses(store, poses), reference_poses(cap_dir / "transforms.json")))
+    row: dict[str, Any] = {"capture": cap[:12], "capture_s": round(cap_s, 1), "poses": "ground truth"}
+    poses = cap  # the capture's own exact poses
+    if sfm:
+        poses, rec_s, _ = nsim(ws, "reconstruct", cap, "--reference", str(cap_dir / "gt_trajectory.tum"),
+                               "--frames", str(n_frames), "--tag", f"poses/{preset}-{room}", log=log)
+        report = json.loads(store.get(poses).file("report.json").read_text())
+        given = report.get("images_given", report.get("frames_given"))
+        used = report.get("images_registered", report.get("frames", given))
+        row.update(poses=poses[:12], reconstruct_s=round(rec_s, 1), images_given=given, images_registered=used,
+                   registered_fraction=round(used / given, 4) if given else None)
+        row.update(pose_agreement(estimated_poses(store, poses), reference_poses(cap_dir / "transforms.json")))
     step_args = ["--steps", str(steps)] if steps else []
     scene, wall, rss = nsim(ws, "train-scene", "--preset", train_preset, "--poses", poses, *step_args,
                             "--tag", f"scene/{preset}-{room}", log=log)
@@ -71,6 +75,9 @@ def main() -> None:
     ap.add_argument("--workspace", type=Path, default=None, help="keep the workspace here (default: a temp dir)")
     ap.add_argument("--preset", default="cpu", help="train-scene preset")
     ap.add_argument("--steps", type=int, default=None, help="train-scene steps (default: the preset's)")
+    ap.add_argument("--clean-poses", choices=("gt", "sfm"), default="gt",
+                    help="the clean capture trains on its exact poses (gt: the stricter reference, and the scene "
+                         "bench/walkable_map.py trains) or on reconstruct's (sfm)")
     ap.add_argument("--quick", action="store_true", help="100 frames at 160x120, 300 steps (a path check)")
     args = ap.parse_args()
     train_preset, steps = ("tiny", args.steps or 300) if args.quick else (args.preset, args.steps)
@@ -79,9 +86,10 @@ def main() -> None:
         log = Path(tmp) / "nsim.log" if args.workspace is None else ws.with_suffix(".log")
         rows = {}
         for name, preset in (("clean", "default"), ("phone", "phone")):
-            rows[name] = one_capture(ws, log, preset, args.room, args.quick, train_preset, steps)
+            rows[name] = one_capture(ws, log, preset, args.room, args.quick, train_preset, steps,
+                                     sfm=name == "phone" or args.clean_poses == "sfm")
             r = rows[name]
-            print(f"{name:6s} registered {r['images_registered']}/{r['images_given']}  rot {r.get('rot_err_deg')}  "
+            print(f"{name:6s} registered {r.get('images_registered')}/{r.get('images_given')}  rot {r.get('rot_err_deg')}  "
                   f"train {r['train_s']} s  PSNR mean {r['heldout_psnr']}  half {r['heldout_psnr_half']}", flush=True)
     half_p, half_c = rows["phone"]["heldout_psnr_half"], rows["clean"]["heldout_psnr_half"]
     print(json.dumps({"bench": "phone_capture", "quick": args.quick, "room": args.room, "train_preset": train_preset,

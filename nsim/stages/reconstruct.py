@@ -298,7 +298,8 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
 
         art = ctx.store.get(ctx.store.resolve(inputs.capture, kind="capture"))
         source = art.path / "images"
-        capture_times = {Path(f.file_path).name: f.timestamp_s
+        # by stem: the frames are written as PNG whatever the capture's format (a phone capture's are JPEG)
+        capture_times = {Path(f.file_path).stem: f.timestamp_s
                          for f in read_transforms(art.file("transforms.json")).frames if f.timestamp_s is not None}
     else:
         source = Path(inputs.source)
@@ -330,7 +331,9 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
             progress_bar(None, "structure from motion", ctx.show_progress) as bar:
         result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,
                          progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
-    timestamps = {f.name: f.timestamp_s for f in frames if f.timestamp_s is not None} or capture_times or None
+    timestamps = ({f.name: f.timestamp_s for f in frames if f.timestamp_s is not None}
+                  or {f.name: capture_times[Path(f.name).stem] for f in frames if Path(f.name).stem in capture_times}
+                  or None)
     t1 = time.perf_counter()
     result, scale = to_metric(result, timestamps, reference=reference, known_distance=kd,
                               camera_height_m=inputs.camera_height_m, max_dt_s=cfg.max_dt_s, seed=ctx.seed)
