@@ -105,3 +105,22 @@ def test_bad_inputs_exit_2(small_capture, run_cli, tmp_path):
         assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], (args, err)
     assert sorted(store.all_ids()) == before  # no partial poses artifact
     assert list((ws / "tmp").iterdir()) == []
+
+
+@pytest.mark.slow
+def test_a_phone_capture_reconstructs_against_its_odometry(run_cli, tmp_path):
+    """The phone preset's frames are JPEG (exposure drift, noise, blur, rolling shutter): reconstruct
+    matches the capture's TUM trajectory to them by timestamp and registers at least 95 % of them."""
+    from nsim.cli import main
+
+    ws = tmp_path / "ws"
+    assert main(["--workspace", str(ws), "capture", "synth", "--preset", "phone", *SMALL, "--tag", "capture/p"]) == 0
+    store = Store(ws)
+    cap = store.get(store.resolve("capture/p"))
+    assert all(f.file_path.endswith(".jpg") for f in read_transforms(cap.file("transforms.json")).frames)
+    code, out, err = run_cli("reconstruct", "capture/p", "--preset", "tiny", "--frames", "100",
+                             "--reference", str(cap.file("gt_trajectory.tum")), workspace=ws)
+    assert code == 0, err
+    report = json.loads(store.get(out.strip()).file("report.json").read_text())
+    assert report["scale"]["source"] == "reference"
+    assert report["images_registered"] >= 0.95 * report["images_given"]
