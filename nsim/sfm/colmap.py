@@ -673,7 +673,7 @@ def _global_bundle_adjustment(rec: pycolmap.Reconstruction, options: SfmOptions,
     if mode == "on" or (gain >= PP_AUTO_MIN_GAIN and shift <= PP_AUTO_MAX_SHIFT):
         info["refined"] = True
         return trial, info
-    info["why"] = (f"auto: refining gained {gain:.1%} (needs {PP_AUTO_MIN_GAIN:.0%}) with the principal point "
+    info["why"] = (f"auto: refining gained {gain:.1%} (needs {PP_AUTO_MIN_GAIN:.1%}) with the principal point "
                    f"{shift:.1%} of the image size off centre (allowed {PP_AUTO_MAX_SHIFT:.0%})")
     return rec, info
 
