@@ -46,8 +46,10 @@ from nsim.synth.room import ROOM_PRESETS, RoomSpec, make_room  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
 
-def open_cells(om: ObstacleMap, n: int, min_sep_m: float = 1.0) -> list[list[float]]:
-    """``n`` free cell centres of ``om``, most open first (distance to anything not free), ``min_sep_m`` apart."""
+def open_cells(om: ObstacleMap, n: int, min_sep_m: float = 1.0, avoid: np.ndarray | None = None,
+               avoid_m: float = 1.5) -> list[list[float]]:
+    """``n`` free cell centres of ``om``, most open first (distance to anything not free), ``min_sep_m``
+    apart and ``avoid_m`` from the point ``avoid`` (the robot's start)."""
     from scipy.ndimage import distance_transform_edt
 
     clearance = distance_transform_edt(np.pad(om.free, 1))[1:-1, 1:-1] * om.cell_m
@@ -59,6 +61,8 @@ def open_cells(om: ObstacleMap, n: int, min_sep_m: float = 1.0) -> list[list[flo
         if clearance[i, j] < 0.4:
             break
         p = xy[i, j]
+        if avoid is not None and np.linalg.norm(p - avoid) < avoid_m:
+            continue
         if all(np.linalg.norm(p - q) >= min_sep_m for q in out):
             out.append(p)
             if len(out) == n:
@@ -71,7 +75,7 @@ def scenario_for(room: str, room_seed: int, scene_id: str, om: ObstacleMap, dura
     cx, cy, rx, ry = make_room(room, room_seed).walk_loop_xy_m
     a = 2.0 * np.pi * np.arange(24) / 24
     loop = np.round(np.stack([cx + rx * np.cos(a), cy + ry * np.sin(a)], -1), 4).tolist()
-    spots = open_cells(om, 8)
+    spots = open_cells(om, 8, avoid=np.asarray(loop[0]))
     if len(spots) < 2:
         raise ValueError(f"{room}: the scene's map has fewer than 2 free cells 0.4 m from anything else")
     humans = []
