@@ -154,7 +154,7 @@ def main() -> None:
                                       log=log)
                 metrics = json.loads(store.get(traj).file("metrics.json").read_text())
                 row.update(simulate_ok=True, simulate_s=round(sim_s, 1),
-                           min_robot_human_m=metrics.get("min_distance_to_robot_m", metrics.get("min_distance_m")))
+                           min_robot_human_m=metrics["hunav"]["minimum_distance_to_people_m"])
             except (SystemExit, ValueError) as exc:
                 row.update(simulate_ok=False, simulate_error=str(exc).splitlines()[-1][:300])
             row["wall_s"] = round(time.perf_counter() - t0, 1)
