@@ -49,7 +49,7 @@ STAGE = "train_scene"
 # 2: scene.json keeps the training images' mean colour (image_mean_rgb, for nsim render's fill);
 # 3: shrunk training images, scoring at eval.image_side with LPIPS and the half-image protocol, scale record
 # 4: the walkable map from the training rays (hits, carved haze; obstacle_density 1/m), depth/mask supervision keys
-VERSION = 4
+VERSION = 5
 
 log = logging.getLogger(__name__)
 

@@ -251,3 +251,24 @@ def test_haze_that_rays_cross_is_carved_and_a_solid_block_is_not():
     blind = obstacle_map(_floor_and(haze_and_block), aabb, (0.1, 1.0), 0.1, 0.05, samples_per_cell=2,
                          generator=torch.Generator().manual_seed(0))
     assert blind.occupied[ring].all()
+
+
+def test_the_soft_front_a_nerf_draws_before_a_surface_is_free():
+    """A solid block (|x|, |y| < 0.3 m) in a 15 cm soft front of 3/m, below the obstacle threshold
+    (50/m): rays that cross the front squarely go on to the block, and rays grazing the block, with
+    a longer path through the front, stop in it; the front's cells, whose centres rays went through
+    and on, are free, and the block stays an obstacle."""
+    def block_with_front(x):
+        r = x[:, :2].abs().amax(-1)
+        low = x[:, 2] < 0.8
+        front = torch.where((r < 0.45) & low, torch.full_like(r, 3.0), torch.zeros_like(r))
+        return torch.where((r < 0.3) & low, torch.full_like(r, SIGMA), front)
+
+    aabb = np.array([[-3.0, -3.0, -0.2], [3.0, 3.0, 1.2]])
+    om = obstacle_map(_floor_and(block_with_front), aabb, (0.1, 1.0), 0.05, 50.0, samples_per_cell=4,
+                      generator=torch.Generator().manual_seed(0), views=_box_views(n=24),
+                      depth_width_px=128)
+    r = np.abs(om.cell_centres_m()).max(-1)
+    assert om.occupied[r < 0.25].all()
+    front = (r > 0.35) & (r < 0.45)
+    assert om.free[front].mean() > 0.9, om.free[front].mean()
