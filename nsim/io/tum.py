@@ -6,6 +6,7 @@ stores the quaternion xyzw on disk; nsim holds it wxyz (`orientations_quat_wxyz`
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +16,8 @@ from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.io import atomic_path
+
+log = logging.getLogger(__name__)
 
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
 QUAT_NORM_TOLERANCE = 1e-3
@@ -75,7 +78,9 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
 
     Raises InputError naming the file and line for a wrong column count, a non-numeric or non-finite
     value, a quaternion whose norm is off 1 by more than 1e-3 (kept as read, not renormalised), a
-    timestamp not after the previous one, or a file with no poses.
+    timestamp before the previous one, or a file with no poses. A pose that repeats the previous pose's
+    timestamp (real ground-truth files have them: TUM's fr2/desk has one) is dropped with a warning
+    naming the count and the first line, as trajectory tools such as evo accept such files.
     """
     path = Path(path)
     try:
@@ -110,7 +115,13 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
         np.abs(norms - 1.0) > QUAT_NORM_TOLERANCE,
         f"quaternion is not unit (norm off 1 by > {QUAT_NORM_TOLERANCE})",
     )
-    check(np.r_[False, np.diff(data[:, 0]) <= 0], "timestamp is not after the previous pose's")
+    check(np.r_[False, np.diff(data[:, 0]) < 0], "timestamp is before the previous pose's")
+    repeat = np.r_[False, np.diff(data[:, 0]) == 0]
+    if repeat.any():
+        first = line_numbers[int(np.argmax(repeat))]
+        log.warning("%s: %d pose(s) repeat the previous pose's timestamp (first at line %d); kept the first pose "
+                    "of each timestamp", path, int(repeat.sum()), first)
+        data = data[~repeat]
     return Trajectory(data[:, 0], data[:, 1:4], data[:, [7, 4, 5, 6]])
 
 
