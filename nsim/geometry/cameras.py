@@ -1,4 +1,4 @@
-"""Camera intrinsics: pinhole, OpenCV radial-tangential, Kannala-Brandt fisheye, equirectangular.
+"""Camera intrinsics: pinhole, OpenCV radial-tangential (plain and rational), Kannala-Brandt fisheye, equirectangular.
 
 Every projection method takes numpy arrays *or* torch tensors and returns the same kind (torch:
 same device and dtype, differentiable). Pixel coordinates follow OpenCV: ``(u, v)`` = (column,
@@ -15,6 +15,13 @@ Models (names as in COLMAP / nerfstudio), with normalised coordinates ``(x/z, y/
 ``OPENCV``
     radial-tangential distortion of ``(x/z, y/z)`` with ``dist = (k1, k2, p1, p2, k3)``
     (a 4-tuple is accepted and gets ``k3 = 0``), exactly as ``cv2.projectPoints``.
+``FULL_OPENCV``
+    OpenCV's rational model (``cv2.CALIB_RATIONAL_MODEL``; ROS's ``rational_polynomial``) with
+    ``dist = (k1, k2, p1, p2, k3, k4, k5, k6)``, OpenCV's order: with ``r^2 = x^2 + y^2`` of the
+    normalised point, ``radial = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)``,
+    then ``xd = x radial + 2 p1 x y + p2 (r^2 + 2 x^2)``, ``yd = y radial + p1 (r^2 + 2 y^2) + 2 p2 x y``,
+    exactly as ``cv2.projectPoints`` with an 8-coefficient vector. COLMAP's ``FULL_OPENCV`` has
+    the same parameters (``fx, fy, cx, cy`` then these eight).
 ``OPENCV_FISHEYE``
     Kannala-Brandt as ``cv2.fisheye``: ``theta`` = angle from +z,
     ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``,
@@ -34,13 +41,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.polynomial.polynomial as P
 import torch
 
 Array = np.ndarray | torch.Tensor
 
-MODELS = ("PINHOLE", "OPENCV", "OPENCV_FISHEYE", "EQUIRECTANGULAR")
-_DIST_LENGTHS = {"PINHOLE": (0,), "OPENCV": (4, 5), "OPENCV_FISHEYE": (4,), "EQUIRECTANGULAR": (0,)}
-_DIST_NAMES = {"OPENCV": "(k1, k2, p1, p2[, k3])", "OPENCV_FISHEYE": "(k1, k2, k3, k4)"}
+MODELS = ("PINHOLE", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE", "EQUIRECTANGULAR")
+#: The models with OpenCV's radial-tangential distortion of ``(x/z, y/z)`` (plain and rational).
+RADTAN_MODELS = ("OPENCV", "FULL_OPENCV")
+_DIST_LENGTHS = {"PINHOLE": (0,), "OPENCV": (4, 5), "FULL_OPENCV": (8,), "OPENCV_FISHEYE": (4,), "EQUIRECTANGULAR": (0,)}
+_DIST_NAMES = {"OPENCV": "(k1, k2, p1, p2[, k3])", "FULL_OPENCV": "(k1, k2, p1, p2, k3, k4, k5, k6)",
+               "OPENCV_FISHEYE": "(k1, k2, k3, k4)"}
 #: Newton iterations for undistortion. Quadratic convergence: strong distortion (k1 = -0.3 at the
 #: corners of a 1920x1080 image) reaches 1e-12 px after 5; the rest is margin.
 NEWTON_ITERS = 10
@@ -87,7 +98,7 @@ class Camera:
 
     ``fx, fy, cx, cy`` are in pixels (OpenCV pixel centres). Construction validates and
     normalises: sizes become ``int``, intrinsics ``float``, ``dist`` a tuple of floats (OPENCV
-    always 5 long). Invalid arguments raise ``ValueError``.
+    always 5 long, FULL_OPENCV 8). Invalid arguments raise ``ValueError``.
     """
 
     model: str
@@ -180,12 +191,21 @@ class Camera:
     def max_angle_rad(self) -> float:
         """Largest angle from +z that projects (uniquely) into the model.
 
-        PINHOLE: pi/2. OPENCV: up to where the radial distortion stops being monotonic. FISHEYE: up
-        to where ``theta_d(theta)`` stops increasing, at most pi. EQUIRECTANGULAR: pi.
+        PINHOLE: pi/2. OPENCV: up to where the radial distortion stops being monotonic. FULL_OPENCV:
+        likewise, and before any pole of the rational factor. FISHEYE: up to where
+        ``theta_d(theta)`` stops increasing, at most pi. EQUIRECTANGULAR: pi.
         """
         if self.model == "OPENCV":
             k1, k2, _, _, k3 = self.dist
             r2_max = _first_positive_root([1.0, 3 * k1, 5 * k2, 7 * k3])  # d(r * radial(r^2))/dr = 0
+            return math.atan(math.sqrt(r2_max)) if math.isfinite(r2_max) else math.pi / 2
+        if self.model == "FULL_OPENCV":
+            k1, k2, _, _, k3, k4, k5, k6 = self.dist
+            num, den = np.array([1.0, k1, k2, k3]), np.array([1.0, k4, k5, k6])  # ascending powers of s = r^2
+            # d(r num(s) / den(s))/dr = (num den + 2 s (num' den - num den')) / den^2
+            slope = P.polyadd(P.polymul(num, den),
+                              P.polymulx(2.0 * P.polysub(P.polymul(P.polyder(num), den), P.polymul(num, P.polyder(den)))))
+            r2_max = min(_first_positive_root(slope), _first_positive_root(den))
             return math.atan(math.sqrt(r2_max)) if math.isfinite(r2_max) else math.pi / 2
         if self.model == "OPENCV_FISHEYE":
             k1, k2, k3, k4 = self.dist
@@ -269,7 +289,7 @@ class Camera:
             z_safe = xp.where(z > _Z_MIN, z, _Z_MIN)
             xn, yn = x / z_safe, y / z_safe
             front = z > _Z_MIN
-            if self.model == "OPENCV":
+            if self.model in RADTAN_MODELS:
                 front = front & (xn * xn + yn * yn < math.tan(self.max_angle_rad) ** 2)
                 xn, yn = self._radtan_distort(xn, yn)
             u = self.fx * xn + self.cx
@@ -280,7 +300,7 @@ class Camera:
     def unproject(self, uv: Array) -> Array:
         """Unit ray directions in camera axes through pixels ``uv (..., 2)``. Returns (..., 3).
 
-        OPENCV and OPENCV_FISHEYE invert the distortion with ``NEWTON_ITERS`` vectorised Newton
+        OPENCV, FULL_OPENCV and OPENCV_FISHEYE invert the distortion with ``NEWTON_ITERS`` vectorised Newton
         steps (no autograd), then one more step with autograd, which gives the exact
         implicit-function gradient at the solution.
         """
@@ -298,7 +318,7 @@ class Camera:
             s = xp.sin(theta) / theta_d
             d = xp.stack([mx * s, my * s, xp.cos(theta)], -1)
         else:
-            if self.model == "OPENCV":
+            if self.model in RADTAN_MODELS:
                 mx, my = self._radtan_undistort(mx, my)
             d = xp.stack([mx, my, xp.ones_like(mx)], -1)
         return d / xp.sqrt((d * d).sum(-1))[..., None]
@@ -333,21 +353,33 @@ class Camera:
 
     # ------------------------------------------------------------------ distortion models
 
+    def _radial(self, r2: Array) -> tuple[Array, Array]:
+        """Radial factor at squared radius ``r2`` and ``dradial`` with ``d radial / dx = dradial x``."""
+        if self.model == "OPENCV":
+            k1, k2, _, _, k3 = self.dist
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            return radial, 2.0 * k1 + r2 * (4.0 * k2 + r2 * 6.0 * k3)
+        k1, k2, _, _, k3, k4, k5, k6 = self.dist
+        num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        dnum = k1 + r2 * (2.0 * k2 + r2 * 3.0 * k3)  # d/d(r2)
+        dden = k4 + r2 * (2.0 * k5 + r2 * 3.0 * k6)
+        return num / den, 2.0 * (dnum * den - num * dden) / (den * den)
+
     def _radtan_distort(self, x: Array, y: Array) -> tuple[Array, Array]:
         """OpenCV radial-tangential distortion of normalised coordinates (same shapes out)."""
-        k1, k2, p1, p2, k3 = self.dist
+        p1, p2 = self.dist[2], self.dist[3]
         r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        radial, _ = self._radial(r2)
         xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return xd, yd
 
     def _radtan_newton_step(self, x: Array, y: Array, xd: Array, yd: Array) -> tuple[Array, Array]:
         """One Newton step towards ``distort(x, y) == (xd, yd)`` with the analytic 2x2 Jacobian."""
-        k1, k2, p1, p2, k3 = self.dist
+        p1, p2 = self.dist[2], self.dist[3]
         r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dradial = 2.0 * k1 + r2 * (4.0 * k2 + r2 * 6.0 * k3)  # d(radial)/dx = dradial * x
+        radial, dradial = self._radial(r2)
         xy = x * y
         ex = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x) - xd  # residual of _radtan_distort
         ey = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy - yd

@@ -43,13 +43,15 @@ from nsim.geometry.conventions import (
 from nsim.geometry.transforms import is_rotation
 from nsim.io import atomic_path
 
-INTRINSIC_KEYS = ("camera_model", "w", "h", "fl_x", "fl_y", "cx", "cy", "k1", "k2", "k3", "k4", "p1", "p2")
-DIST_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+INTRINSIC_KEYS = ("camera_model", "w", "h", "fl_x", "fl_y", "cx", "cy", "k1", "k2", "k3", "k4", "k5", "k6", "p1",
+                  "p2")
+DIST_KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
 #: Which distortion keys each model uses, in ``Camera.dist`` order.
 MODEL_DIST_KEYS = {
     "PINHOLE": (),
     "OPENCV": ("k1", "k2", "p1", "p2", "k3"),
     "OPENCV_FISHEYE": ("k1", "k2", "k3", "k4"),
+    "FULL_OPENCV": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),  # nsim's extension: nerfstudio has no k5, k6
     "EQUIRECTANGULAR": (),
 }
 FRAME_KEYS = ("file_path", "transform_matrix", "depth_file_path", "mask_path", "timestamp")

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nsim.geometry.cameras import Camera
+from nsim.geometry.cameras import RADTAN_MODELS, Camera
 
 Bounds = tuple[float, float, float, float]
 
@@ -275,7 +275,7 @@ def _rim_dirs(camera: Camera) -> np.ndarray:
     if camera.model in ("EQUIRECTANGULAR", "PINHOLE"):
         return np.zeros((0, 3))
     theta = camera.max_angle_rad * (1.0 - 1e-9)
-    if camera.model == "OPENCV" and theta >= math.pi / 2:
+    if camera.model in RADTAN_MODELS and theta >= math.pi / 2:
         return np.zeros((0, 3))
     psi = np.linspace(0.0, 2.0 * math.pi, RIM_SAMPLES, endpoint=False)
     return np.stack([np.sin(theta) * np.cos(psi), np.sin(theta) * np.sin(psi), np.full_like(psi, math.cos(theta))], 1)

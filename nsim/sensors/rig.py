@@ -33,7 +33,7 @@ optionally ``urdf`` and ``base_link``): start from that URDF link's frame in ``b
 (default: the URDF's root link, which must be the body), then apply ``xyz_m`` and the rotation
 as an offset in the link's frame.
 
-``intrinsics`` keys: ``model`` (PINHOLE, OPENCV, OPENCV_FISHEYE, EQUIRECTANGULAR), ``width``,
+``intrinsics`` keys: ``model`` (PINHOLE, OPENCV, FULL_OPENCV, OPENCV_FISHEYE, EQUIRECTANGULAR), ``width``,
 ``height`` and one of: ``preset: spot_fisheye`` (``Camera.fisheye_spot_like``), ``hfov_deg``
 (a centred PINHOLE, ``Camera.pinhole_from_fov``), or ``fx`` (``fy`` defaults to ``fx``, ``cx, cy``
 to the image centre, OpenCV pixel convention) with ``dist`` as ``nsim.geometry.Camera`` takes it.

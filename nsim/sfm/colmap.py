@@ -270,7 +270,8 @@ class SfmResult:
 def camera_from_colmap(cam: pycolmap.Camera) -> Camera:
     """A pycolmap camera as an nsim Camera (principal point shifted by -0.5 to OpenCV's convention).
 
-    SIMPLE_RADIAL and RADIAL become OPENCV with the same radial terms (identical projection).
+    SIMPLE_RADIAL and RADIAL become OPENCV with the same radial terms (identical projection);
+    FULL_OPENCV becomes OPENCV when its rational terms k4..k6 are zero.
     """
     model, p = cam.model_name, [float(v) for v in cam.params]
     if model == "SIMPLE_PINHOLE":
@@ -291,8 +292,9 @@ def camera_from_colmap(cam: pycolmap.Camera) -> Camera:
     elif model == "FULL_OPENCV":
         fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 = p
         if any((k4, k5, k6)):
-            raise ValueError(f"FULL_OPENCV camera with rational terms k4..k6 {k4, k5, k6} has no nsim model")
-        dist, out = (k1, k2, p1, p2, k3), "OPENCV"
+            dist, out = (k1, k2, p1, p2, k3, k4, k5, k6), "FULL_OPENCV"
+        else:
+            dist, out = (k1, k2, p1, p2, k3), "OPENCV"
     elif model == "OPENCV_FISHEYE":
         fx, fy, cx, cy, k1, k2, k3, k4 = p
         dist, out = (k1, k2, k3, k4), "OPENCV_FISHEYE"
@@ -316,6 +318,8 @@ def camera_to_colmap(camera: Camera, camera_id: int = 1) -> pycolmap.Camera:
             model, params = "OPENCV", [camera.fx, camera.fy, cx, cy, k1, k2, p1, p2]
         else:
             model, params = "FULL_OPENCV", [camera.fx, camera.fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
+    elif camera.model == "FULL_OPENCV":
+        model, params = "FULL_OPENCV", [camera.fx, camera.fy, cx, cy, *camera.dist]
     elif camera.model == "OPENCV_FISHEYE":
         model, params = "OPENCV_FISHEYE", [camera.fx, camera.fy, cx, cy, *camera.dist]
     else:

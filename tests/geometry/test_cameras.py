@@ -17,6 +17,9 @@ CAMERAS = {
     "opencv": Camera("OPENCV", 64, 48, 50.0, 51.0, 32.3, 23.6, (-0.28, 0.07, 1e-3, -5e-4, -0.005)),
     "opencv_strong": Camera("OPENCV", 192, 108, 100.0, 100.0, 95.5, 53.5, (-0.3, 0.1, 1e-3, -5e-4, -0.01)),
     "opencv4": Camera("OPENCV", 80, 60, 70.0, 70.0, 39.5, 29.5, (0.1, -0.02, -2e-3, 1e-3)),
+    # OpenCV's rational model, as a wide lens calibrates (the k4..k6 denominator tames the polynomial)
+    "full_opencv": Camera("FULL_OPENCV", 64, 48, 50.0, 51.0, 32.3, 23.6,
+                          (0.3, -0.05, 1e-3, -5e-4, 0.002, 0.6, -0.02, 0.005)),
     "fisheye": Camera.fisheye_spot_like(64, 48),
     "equirect": Camera.equirect(64, 32),
 }
@@ -39,7 +42,7 @@ def _random_points(n: int, seed: int = 0) -> np.ndarray:
     return np.column_stack([xy, z])
 
 
-@pytest.mark.parametrize("name", ["pinhole", "opencv", "opencv_strong", "opencv4"])
+@pytest.mark.parametrize("name", ["pinhole", "opencv", "opencv_strong", "opencv4", "full_opencv"])
 def test_project_matches_cv2(name):
     cam = CAMERAS[name]
     p = _random_points(2000)
@@ -190,6 +193,7 @@ def test_pixel_rays():
         (dict(dist=(0.1, float("nan"), 0.0, 0.0)), "dist"),
         (dict(model="PINHOLE", dist=(0.1, 0.0, 0.0, 0.0)), "dist"),
         (dict(model="OPENCV_FISHEYE", dist=(0.1, 0.0, 0.0, 0.0, 0.0)), "dist"),
+        (dict(model="FULL_OPENCV", dist=(0.1, 0.0, 0.0, 0.0, 0.0)), r"FULL_OPENCV takes \(k1, k2, p1, p2, k3, k4, k5, k6\)"),
         (dict(dist="abcd"), "dist"),
     ],
 )
@@ -215,7 +219,7 @@ def test_dict_round_trip(name):
         Camera.from_dict({k: v for k, v in cam.to_dict().items() if k != "fx"})
 
 
-@pytest.mark.parametrize("name", ["pinhole", "opencv", "fisheye"])
+@pytest.mark.parametrize("name", ["pinhole", "opencv", "full_opencv", "fisheye"])
 def test_scaled_keeps_image_edges(name):
     cam = CAMERAS[name]
     half = cam.scaled(0.5)
@@ -250,3 +254,43 @@ def test_fov_and_factories():
 def test_K():
     cam = CAMERAS["opencv"]
     np.testing.assert_array_equal(cam.K, [[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+
+
+def test_full_opencv_matches_cv2_rational_flag():
+    """The 8-coefficient vector is cv2's rational model: same pixels as cv2.projectPoints, also strong terms."""
+    dist = (-0.4, 0.15, 2e-3, -1e-3, -0.02, -0.1, 0.05, 0.01)
+    cam = Camera("FULL_OPENCV", 640, 480, 300.0, 310.0, 319.2, 241.7, dist)
+    p = _random_points(3000, seed=9)
+    uv, valid = cam.project(p)
+    ref, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), cam.K, np.array(dist))
+    np.testing.assert_allclose(uv, ref[:, 0], rtol=0, atol=1e-6)
+    # round trip away from the fold, where Newton has a well-conditioned Jacobian (as for OPENCV)
+    inner = valid & (_angle_rad(p, np.array([0.0, 0.0, 1.0])) < 0.95 * cam.max_angle_rad)
+    assert inner.sum() > 100 and _angle_rad(cam.unproject(uv[inner]), p[inner]).max() < 1e-9
+
+
+def test_full_opencv_without_rational_terms_is_opencv():
+    k = (-0.28, 0.07, 1e-3, -5e-4, -0.005)
+    plain = Camera("OPENCV", 64, 48, 50.0, 51.0, 32.3, 23.6, k)
+    full = Camera("FULL_OPENCV", 64, 48, 50.0, 51.0, 32.3, 23.6, k + (0.0, 0.0, 0.0))
+    assert full.max_angle_rad == pytest.approx(plain.max_angle_rad, rel=1e-12)
+    p = _random_points(500, seed=3)
+    np.testing.assert_allclose(full.project(p)[0], plain.project(p)[0], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(full.project(p)[1], plain.project(p)[1])
+    grid = _pixel_grid(plain)
+    np.testing.assert_allclose(full.unproject(grid), plain.unproject(grid), rtol=0, atol=1e-12)
+
+
+def test_full_opencv_max_angle():
+    """Where r_d(r) = r radial(r^2) stops increasing (found numerically), or at a pole of the denominator."""
+    cam = Camera("FULL_OPENCV", 640, 480, 300.0, 300.0, 319.5, 239.5, (-0.4, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0))
+    r = np.linspace(0.0, 3.0, 300_001)
+    r_d = r * (1 - 0.4 * r**2) / (1 + 0.3 * r**2)
+    r_fold = r[np.argmax(np.diff(r_d) < 0)]
+    assert cam.max_angle_rad == pytest.approx(math.atan(r_fold), abs=1e-4)
+    _, valid = cam.project(np.array([[1.2 * r_fold, 0.0, 1.0], [0.9 * r_fold, 0.0, 1.0]]))
+    assert valid.tolist() == [False, True]
+    pole = Camera("FULL_OPENCV", 640, 480, 300.0, 300.0, 319.5, 239.5, (0.0,) * 5 + (-1.0, 0.0, 0.0))
+    assert pole.max_angle_rad == pytest.approx(math.pi / 4)  # 1 - r^2 = 0 at r = 1; r / (1 - r^2) rises until then
+    tame = CAMERAS["full_opencv"]
+    assert 0.0 < tame.max_angle_rad < math.pi / 2

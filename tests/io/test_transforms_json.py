@@ -27,6 +27,8 @@ CAMERAS = {
     "opencv": Camera("OPENCV", 640, 480, 480.5, 481.25, 321.1, 238.9, (-0.11, 0.023, 1.5e-4, -3.3e-4)),
     "opencv_k3": Camera("OPENCV", 640, 480, 480.5, 481.25, 321.1, 238.9, (-0.11, 0.023, 1.5e-4, -3.3e-4, 1e-3)),
     "fisheye": Camera.fisheye_spot_like(),
+    "full_opencv": Camera("FULL_OPENCV", 640, 480, 480.5, 481.25, 321.1, 238.9,
+                          (0.31, -0.12, 1.5e-4, -3.3e-4, 0.01, 0.62, -0.05, 0.02)),
     "equirect": Camera.equirect(2048, 1024),
 }
 

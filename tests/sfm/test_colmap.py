@@ -34,10 +34,11 @@ CAMERAS = [
     Camera("OPENCV", 160, 120, 110.0, 111.0, 80.2, 59.1, (-0.1, 0.02, 0.001, -0.002, 0.0)),
     Camera("OPENCV", 160, 120, 110.0, 111.0, 80.2, 59.1, (-0.1, 0.02, 0.001, -0.002, 0.004)),
     Camera.fisheye_spot_like(160, 120),
+    Camera("FULL_OPENCV", 160, 120, 110.0, 111.0, 80.2, 59.1, (0.31, -0.12, 0.001, -0.002, 0.01, 0.62, -0.05, 0.02)),
 ]
 
 
-@pytest.mark.parametrize("camera", CAMERAS, ids=["pinhole", "opencv", "opencv_k3", "fisheye"])
+@pytest.mark.parametrize("camera", CAMERAS, ids=["pinhole", "opencv", "opencv_k3", "fisheye", "full_opencv"])
 def test_camera_conversion_matches_pycolmap_projection(camera):
     cam = camera_to_colmap(camera)
     assert cam.has_prior_focal_length

@@ -1,0 +1,1010 @@
+"""A robot's recording -- a ROS 1 ``.bag`` or a ROS 2 bag directory (sqlite3 or mcap) -- as arrays.
+
+::
+
+    with RobotLog("run.bag") as log:                    # or RobotLog(path, load_selection("topics.yaml"))
+        front = log.cameras["front"]                    # CameraStream: stamps_ns (N,), camera, frame_id
+        rgb = log.image(front, 0)                       # frame 0, decoded now (RGB uint8)
+        for i, rgb in log.images(front): ...            # every frame, streamed
+        front_to_body = log.sensor_to_body(front.frame_id)
+        trajectory = log.body_trajectory()              # stamps_ns (N,), body_to_odom (N, 4, 4)
+        pairs = associate(front.stamps_ns, log.lidars["top"].stamps_ns, tolerance_ns=20_000_000)
+
+Bags are opened with ``rosbags.highlevel.AnyReader``: one or more ROS 1 ``.bag`` files (a split
+recording), or one ROS 2 bag directory (``metadata.yaml`` with ``.db3`` or ``.mcap``; the storage
+file itself is accepted too). Message types come from the bag's own definitions, or from ROS 2
+Humble's where a ROS 2 bag has none. Nothing is executed or unpickled.
+
+**Choosing topics.** A :class:`Selection` (``load_selection`` reads it from YAML, strictly)::
+
+    cameras:                      # colour/gray images; name -> topics
+      front: {image: /front/image, info: /front/camera_info}
+      back: /back/image_raw/compressed      # info: the CameraInfo topic in the image's namespace
+    depth:                        # depth images (16UC1 millimetres or 32FC1 metres), same form
+      front: /front/depth
+    lidar: {top: /points}         # name -> PointCloud2 topic
+    odometry: /odom               # nav_msgs/Odometry
+    tf: /tf                       # default /tf and /tf_static when present
+    tf_static: /tf_static
+    body_frame: body              # default: the odometry's child frame, else base_link / body / base_footprint
+    odom_frame: odom              # default: the odometry's frame, else odom
+
+A group left out (or ``null``) gets the defaults by message type: **cameras** and **depth** are the
+Image and CompressedImage topics that have a CameraInfo topic in their namespace (``/a/b/image``
+and ``/a/b/image/compressed`` look in ``/a/b/``: ``camera_info`` there, or the only CameraInfo
+topic there); an Image whose first message is 16UC1 or 32FC1 is depth; a compressed topic whose
+raw topic is in the bag is left to the raw one; images without a CameraInfo and compressedDepth
+topics are skipped with a warning. **lidar**: every PointCloud2 topic. **odometry**: the
+Odometry topic when there is exactly one. Default names are the topic's namespace when its last
+part is a generic word (``/front/image`` -> ``front``, ``/velodyne/points`` -> ``velodyne``), the
+whole topic otherwise (``/velodyne_points``), with ``/`` as ``_``. An image topic whose last part
+starts with ``image_rect`` is rectified: its camera is the PINHOLE of the CameraInfo's ``P``
+(``rectified: true|false`` overrides the guess); other images use ``K`` and ``D``
+(:func:`nsim.io.rosbag.camera_from_info`).
+
+**Timestamps** are the messages' header stamps in integer nanoseconds (``sec * 10**9 +
+nanosec``), the time the data was taken. Only where a header stamp is zero does the message's bag
+(receive) time stand in; the stream's ``stamps_from_bag`` counts those messages and a warning
+names the topic. Per topic (per tf link for /tf) the stamps must increase in bag order. On /tf a
+repeated stamp of the same link is dropped (the first one is kept, as tf2 does).
+
+**Frames.** Frame ids lose a leading ``/`` (ROS 1's tf allowed one; tf2 does not). A transform
+``parent -> child`` on /tf or /tf_static is the child's pose in the parent, ``child_to_parent
+(4, 4)``. :meth:`TfTree.sensor_to_body` chains /tf_static links only; :meth:`RobotLog.body_trajectory`
+takes odom -> body from /tf (a path with exactly one moving link, static links at either end) or
+else from the Odometry topic.
+
+**Errors.** Bad input raises :class:`~nsim.errors.InputError` with one line that names the bag,
+the topic and, where one message is at fault, its index in the topic (0-based, bag order): a topic
+that is not in the bag (with the ones of the wanted type that are), an image topic without
+CameraInfo, an unknown encoding, an image whose size differs from its CameraInfo, a compressed
+image that does not decode, a PointCloud2 without x/y/z, stamps that do not increase, a missing tf
+link, a bad quaternion.
+
+Everything here returns new arrays: nothing read is modified in place.
+"""
+
+from __future__ import annotations
+
+import difflib
+import logging
+import os
+from collections import deque
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
+
+from nsim.errors import InputError
+from nsim.geometry.cameras import Camera
+from nsim.geometry.transforms import invert_se3
+from nsim.io.rosbag import (
+    DEPTH_ENCODINGS,
+    IMAGE_ENCODINGS,
+    TYPESTORE,
+    LidarPoints,
+    camera_from_info,
+    lidar_points,
+    matrix_from_transform,
+    read_compressed_image,
+    read_image,
+    stamp_ns,
+)
+
+log = logging.getLogger(__name__)
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+#: Last topic parts that name what a topic carries, not which sensor: dropped from default names.
+GENERIC_TOPIC_PARTS = ("image", "image_raw", "image_rect", "image_color", "image_mono", "image_rect_color",
+                       "image_rect_raw", "depth", "points", "points_raw", "cloud", "pointcloud", "point_cloud")
+#: Default body frames, tried in this order when neither the selection nor an Odometry names one.
+BODY_FRAMES = ("base_link", "body", "base_footprint")
+
+
+# ---------------------------------------------------------------------------- selection
+
+
+@dataclass(frozen=True)
+class CameraTopics:
+    """One camera's topics. info None: the CameraInfo in the image topic's namespace; rectified
+    None: guessed from the topic (last part starts with ``image_rect``)."""
+
+    image: str
+    info: str | None = None
+    rectified: bool | None = None
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which topics to read (see the module docstring); a group that is None gets the defaults."""
+
+    cameras: Mapping[str, CameraTopics] | None = None
+    depth: Mapping[str, CameraTopics] | None = None
+    lidar: Mapping[str, str] | None = None
+    odometry: str | None = None
+    tf: str | None = None
+    tf_static: str | None = None
+    body_frame: str | None = None
+    odom_frame: str | None = None
+
+    @classmethod
+    def from_data(cls, data: Any, where: str = "selection") -> Selection:
+        """Strict reading of plain data (parsed YAML): unknown keys and wrong types raise
+        :class:`InputError` naming ``where`` and the dotted key."""
+        if data is None:
+            return cls()
+        if not isinstance(data, Mapping):
+            raise InputError(f"{where}: expected a mapping, got {type(data).__name__}")
+        keys = ("cameras", "depth", "lidar", "odometry", "tf", "tf_static", "body_frame", "odom_frame")
+        _check_keys(data, keys, where)
+        out: dict[str, Any] = {}
+        for group in ("cameras", "depth"):
+            if data.get(group) is not None:
+                out[group] = {name: _camera_topics(entry, f"{where}.{group}.{name}")
+                              for name, entry in _mapping(data[group], f"{where}.{group}").items()}
+        if data.get("lidar") is not None:
+            lidar = {}
+            for name, entry in _mapping(data["lidar"], f"{where}.lidar").items():
+                if isinstance(entry, Mapping):
+                    _check_keys(entry, ("points",), f"{where}.lidar.{name}")
+                    entry = entry.get("points")
+                lidar[name] = _topic_name(entry, f"{where}.lidar.{name}")
+            out["lidar"] = lidar
+        for key in ("odometry", "tf", "tf_static"):
+            if data.get(key) is not None:
+                out[key] = _topic_name(data[key], f"{where}.{key}")
+        for key in ("body_frame", "odom_frame"):
+            if data.get(key) is not None:
+                if not isinstance(data[key], str) or not data[key].strip("/"):
+                    raise InputError(f"{where}.{key}: expected a frame name, got {data[key]!r}")
+                out[key] = data[key].lstrip("/")
+        return cls(**out)
+
+
+def load_selection(path: str | os.PathLike) -> Selection:
+    """A :class:`Selection` from a YAML file (strict; errors name the file and the dotted key)."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    return Selection.from_data(data, str(path))
+
+
+def _check_keys(data: Mapping, known: Sequence[str], where: str) -> None:
+    for key in data:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})"
+            raise InputError(f"{where}: unknown key {key!r}{hint}")
+
+
+def _mapping(value: Any, where: str) -> Mapping:
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) and k for k in value):
+        raise InputError(f"{where}: expected a mapping from names to topics, got {value!r}")
+    return value
+
+
+def _topic_name(value: Any, where: str) -> str:
+    if not isinstance(value, str) or not value.strip("/"):
+        raise InputError(f"{where}: expected a topic name, got {value!r}")
+    return "/" + value.lstrip("/")
+
+
+def _camera_topics(entry: Any, where: str) -> CameraTopics:
+    if isinstance(entry, str):
+        return CameraTopics(_topic_name(entry, where))
+    if not isinstance(entry, Mapping):
+        raise InputError(f"{where}: expected a topic or a mapping with image (and info, rectified), got {entry!r}")
+    _check_keys(entry, ("image", "info", "rectified"), where)
+    if "image" not in entry:
+        raise InputError(f"{where}: missing key 'image'")
+    info = None if entry.get("info") is None else _topic_name(entry["info"], f"{where}.info")
+    rectified = entry.get("rectified")
+    if rectified is not None and not isinstance(rectified, bool):
+        raise InputError(f"{where}.rectified: expected true or false, got {rectified!r}")
+    return CameraTopics(_topic_name(entry["image"], f"{where}.image"), info, rectified)
+
+
+# ---------------------------------------------------------------------------- what is read
+
+
+@dataclass(frozen=True)
+class TopicSummary:
+    """A topic of the bag: its message type (None when its connections disagree) and message count."""
+
+    topic: str
+    msgtype: str | None
+    count: int
+
+
+@dataclass(frozen=True)
+class MessageIndex:
+    """Where a stream's messages lie in the bag, to read message ``i`` again.
+
+    log_time_ns: (N,) int64 bag (receive) times; connection: (N,) int64, index into the topic's
+    connections; rank: (N,) int64, the message's place among those of its connection with the
+    same bag time (0 unless several share it).
+    """
+
+    log_time_ns: np.ndarray
+    connection: np.ndarray
+    rank: np.ndarray
+
+
+@dataclass(frozen=True)
+class CameraStream:
+    """One camera (or depth camera) topic. Frames are decoded on demand by :meth:`RobotLog.image`.
+
+    stamps_ns: (N,) int64 header stamps (see the module docstring); camera: intrinsics of the
+    frames as decoded (for depth, of the depth image); frame_id: the images' frame (OpenCV axes by
+    REP 103); encoding: the Image encoding, or the CompressedImage format string; is_depth: frames
+    come back as float32 metres (NaN = no measurement for 16UC1's 0; 32FC1 as recorded).
+    """
+
+    name: str
+    topic: str
+    msgtype: str
+    info_topic: str
+    frame_id: str
+    camera: Camera
+    encoding: str
+    is_depth: bool
+    stamps_ns: np.ndarray
+    stamps_from_bag: int
+    messages: MessageIndex
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+
+@dataclass(frozen=True)
+class LidarStream:
+    """One PointCloud2 topic; clouds are read on demand by :meth:`RobotLog.cloud`.
+
+    stamps_ns: (N,) int64 header stamps; frame_id: the clouds' frame; fields: the first cloud's
+    field names, in their order.
+    """
+
+    name: str
+    topic: str
+    frame_id: str
+    fields: tuple[str, ...]
+    stamps_ns: np.ndarray
+    stamps_from_bag: int
+    messages: MessageIndex
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """A nav_msgs/Odometry topic, read whole.
+
+    stamps_ns: (N,) int64; child_to_parent: (N, 4, 4), the pose of ``child_frame_id`` (the body)
+    in ``frame_id`` (odom), i.e. body-in-odom; linear_mps, angular_radps: (N, 3) the twist, in
+    ``child_frame_id`` as ROS specifies.
+    """
+
+    topic: str
+    frame_id: str
+    child_frame_id: str
+    stamps_ns: np.ndarray
+    child_to_parent: np.ndarray
+    linear_mps: np.ndarray
+    angular_radps: np.ndarray
+    stamps_from_bag: int
+
+
+@dataclass(frozen=True)
+class StaticLink:
+    """A /tf_static transform: ``child_to_parent (4, 4)``, the child's pose in the parent."""
+
+    parent: str
+    child: str
+    child_to_parent: np.ndarray
+
+
+@dataclass(frozen=True)
+class MovingLink:
+    """A /tf link over time: stamps_ns (N,) int64 increasing, child_to_parent (N, 4, 4)."""
+
+    parent: str
+    child: str
+    stamps_ns: np.ndarray
+    child_to_parent: np.ndarray
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """The body's motion: stamps_ns (N,) int64, body_to_odom (N, 4, 4) (the body's pose in odom).
+
+    source: where it came from (``tf: odom -> body`` or ``odometry /odom``)."""
+
+    stamps_ns: np.ndarray
+    body_to_odom: np.ndarray
+    odom_frame: str
+    body_frame: str
+    source: str
+
+
+@dataclass(frozen=True)
+class TfTree:
+    """The transforms of /tf_static (``static``, one per child frame, the last one sent) and /tf
+    (``moving``, one per parent -> child link)."""
+
+    static: tuple[StaticLink, ...] = ()
+    moving: tuple[MovingLink, ...] = ()
+
+    @property
+    def frames(self) -> set[str]:
+        """Every frame any link names."""
+        return {f for link in (*self.static, *self.moving) for f in (link.parent, link.child)}
+
+    def _path(self, source: str, target: str, with_moving: bool) -> list[tuple[StaticLink | MovingLink, bool]] | None:
+        """Links from ``source`` to ``target`` (breadth first, fewest links), each with True when
+        it is walked child -> parent; None if there is no path."""
+        neighbours: dict[str, list[tuple[str, StaticLink | MovingLink, bool]]] = {}
+        for link in (*self.static, *(self.moving if with_moving else ())):
+            neighbours.setdefault(link.child, []).append((link.parent, link, True))
+            neighbours.setdefault(link.parent, []).append((link.child, link, False))
+        previous: dict[str, tuple[str, StaticLink | MovingLink, bool] | None] = {source: None}
+        queue = deque([source])
+        while queue:
+            frame = queue.popleft()
+            if frame == target:
+                path = []
+                while previous[frame] is not None:
+                    before, link, upward = previous[frame]
+                    path.append((link, upward))
+                    frame = before
+                return path[::-1]
+            for nxt, link, upward in neighbours.get(frame, ()):
+                if nxt not in previous:
+                    previous[nxt] = (frame, link, upward)
+                    queue.append(nxt)
+        return None
+
+    def _no_link(self, source: str, target: str) -> InputError:
+        known = sorted({f for link in self.static for f in (link.parent, link.child)})
+        shown = ", ".join(known[:12]) + (", ..." if len(known) > 12 else "") if known else "none"
+        through = " (there is one only through moving /tf links)" if self._path(source, target, True) else ""
+        return InputError(f"tf: no link between {source!r} and {target!r}{through}; static frames: {shown}")
+
+    def static_transform(self, source: str, target: str) -> np.ndarray:
+        """``source_to_target (4, 4)`` through /tf_static links; InputError when there is no path."""
+        source, target = source.lstrip("/"), target.lstrip("/")
+        path = self._path(source, target, with_moving=False)
+        if path is None:
+            raise self._no_link(source, target)
+        out = np.eye(4)
+        for link, upward in path:
+            out = (link.child_to_parent if upward else invert_se3(link.child_to_parent)) @ out
+        return out
+
+    def sensor_to_body(self, frame_id: str, body_frame: str) -> np.ndarray:
+        """``sensor_to_body (4, 4)``: points in ``frame_id`` to ``body_frame``, chaining /tf_static links.
+
+        Raises ``InputError("tf: no link between 'X' and 'body' ...")`` when no static path joins them.
+        """
+        return self.static_transform(frame_id, body_frame)
+
+    def trajectory(self, odom_frame: str, body_frame: str) -> tuple[np.ndarray, np.ndarray]:
+        """``stamps_ns (N,)`` and ``body_to_odom (N, 4, 4)`` from /tf, at the stamps of the one
+        moving link on the path from body to odom (static links at either end are composed in).
+        InputError when there is no path, or when it has no or several moving links."""
+        odom_frame, body_frame = odom_frame.lstrip("/"), body_frame.lstrip("/")
+        path = self._path(body_frame, odom_frame, with_moving=True)
+        if path is None:
+            raise InputError(f"tf: no link between {body_frame!r} and {odom_frame!r} in /tf or /tf_static")
+        moving = [k for k, (link, _) in enumerate(path) if isinstance(link, MovingLink)]
+        if len(moving) != 1:
+            names = ", ".join(f"{path[k][0].parent} -> {path[k][0].child}" for k in moving)
+            raise InputError(f"tf: the path from {odom_frame!r} to {body_frame!r} has {len(moving)} moving links"
+                             f"{' (' + names + ')' if names else ''}; nsim reads a trajectory across exactly one")
+        k = moving[0]
+        before, after = np.eye(4), np.eye(4)
+        for link, upward in path[:k]:
+            before = (link.child_to_parent if upward else invert_se3(link.child_to_parent)) @ before
+        for link, upward in path[k + 1:]:
+            after = (link.child_to_parent if upward else invert_se3(link.child_to_parent)) @ after
+        link, upward = path[k]
+        step = link.child_to_parent if upward else invert_se3(link.child_to_parent)
+        return link.stamps_ns.copy(), after @ step @ before
+
+
+# ---------------------------------------------------------------------------- association
+
+
+def associate(stamps_a_ns: np.ndarray, stamps_b_ns: np.ndarray, tolerance_ns: int) -> np.ndarray:
+    """Index pairs ``(K, 2)`` int64 ``[i, j]`` matching ``stamps_a_ns[i]`` with ``stamps_b_ns[j]``.
+
+    Nearest first, unique, within the tolerance: every pair with ``|a_i - b_j| <= tolerance_ns``
+    is a candidate; candidates are taken in order of increasing ``|a_i - b_j|`` (ties: smaller
+    ``i``, then smaller ``j``) unless ``i`` or ``j`` is already taken. So each stamp is used at
+    most once, a pair is never farther apart than the tolerance, and where two stamps want the
+    same partner the nearer one gets it (the other may get its second choice). Rows are sorted by
+    ``i``. Stamps are integer nanoseconds, 1-D, in any order.
+    """
+    a, b = np.asarray(stamps_a_ns), np.asarray(stamps_b_ns)
+    for name, x in (("stamps_a_ns", a), ("stamps_b_ns", b)):
+        if x.ndim != 1 or not (np.issubdtype(x.dtype, np.integer) or x.size == 0):
+            raise ValueError(f"{name}: expected 1-D integer nanoseconds, got {x.dtype} {x.shape}")
+    if isinstance(tolerance_ns, bool) or not isinstance(tolerance_ns, int | np.integer) or tolerance_ns < 0:
+        raise ValueError(f"tolerance_ns: expected an integer >= 0, got {tolerance_ns!r}")
+    a, b = a.astype(np.int64), b.astype(np.int64)
+    order_b = np.argsort(b, kind="stable")
+    sorted_b = b[order_b]
+    lo = np.searchsorted(sorted_b, a - tolerance_ns, side="left")
+    hi = np.searchsorted(sorted_b, a + tolerance_ns, side="right")
+    counts = hi - lo
+    ii = np.repeat(np.arange(len(a)), counts)
+    jj = order_b[np.repeat(lo, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
+    gap = np.abs(a[ii] - b[jj])
+    taken_a, taken_b = np.zeros(len(a), bool), np.zeros(len(b), bool)
+    pairs = []
+    for k in np.lexsort((jj, ii, gap)):
+        i, j = ii[k], jj[k]
+        if not (taken_a[i] or taken_b[j]):
+            taken_a[i] = taken_b[j] = True
+            pairs.append((i, j))
+    out = np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+    return out
+
+
+# ---------------------------------------------------------------------------- the reader
+
+
+def _bag_paths(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[Path]:
+    """The paths AnyReader wants: ROS 1 ``.bag`` files, or one ROS 2 bag directory."""
+    items = [paths] if isinstance(paths, str | os.PathLike) else list(paths)
+    if not items:
+        raise InputError("bag: no path given")
+    out = []
+    for item in items:
+        path = Path(item)
+        if not os.path.lexists(path):
+            raise InputError(f"bag {path}: does not exist")
+        if path.is_file() and path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
+            path = path.parent  # the storage file of a ROS 2 bag: read the bag
+        out.append(path)
+    ros1 = [p.suffix == ".bag" for p in out]
+    if len(out) > 1 and not all(ros1):
+        raise InputError(f"bag {out[0]}: several paths must all be ROS 1 .bag files (a ROS 2 bag is one directory)")
+    return out
+
+
+def list_topics(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> dict[str, TopicSummary]:
+    """Every topic of a bag with its message type and count, without reading messages."""
+    bag_paths = _bag_paths(paths)
+    reader = _open_reader(bag_paths, str(bag_paths[0]))
+    try:
+        return {name: TopicSummary(name, info.msgtype, info.msgcount) for name, info in reader.topics.items()}
+    finally:
+        reader.close()
+
+
+def _open_reader(paths: list[Path], name: str) -> AnyReader:
+    try:
+        reader = AnyReader(paths, default_typestore=TYPESTORE)
+        reader.open()
+    except (AnyReaderError, OSError, ValueError, KeyError) as exc:
+        raise InputError(f"bag {name}: not a readable ROS bag: {' '.join(str(exc).split())}") from None
+    return reader
+
+
+class _Stamps:
+    """Header stamps of one topic (or tf link) as they come, checked to increase."""
+
+    def __init__(self) -> None:
+        self.stamps: list[int] = []
+        self.from_bag = 0
+
+    def add(self, header_stamp_ns: int, log_time_ns: int, where: str, strict: bool = True) -> bool:
+        """Append; returns False for a repeated stamp when not ``strict`` (the message is dropped)."""
+        t = header_stamp_ns
+        if t == 0:
+            t = log_time_ns
+            self.from_bag += 1
+        if self.stamps and t <= self.stamps[-1]:
+            if not strict and t == self.stamps[-1]:
+                return False
+            raise InputError(f"{where}: header stamp {t} ns is not after the previous message's "
+                             f"{self.stamps[-1]} ns (stamps must increase)")
+        self.stamps.append(t)
+        return True
+
+
+class _Topic:
+    """What one pass over the bag gathers about one stream topic."""
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.stamps = _Stamps()
+        self.log_times: list[int] = []
+        self.connection: list[int] = []
+        self.rank: list[int] = []
+        self.last: dict[int, tuple[int, int]] = {}  # connection -> (last bag time, rank)
+        self.first = None  # the first message, deserialized
+        self.size: tuple[int, int] | None = None  # (width, height) of raw images
+        self.encoding: str | None = None
+        self.frame_id: str | None = None
+        self.calibration: dict[bool, Camera] = {}  # CameraInfo topics: rectified -> camera of message 0
+
+    def place(self, connection: int, log_time_ns: int) -> None:
+        t, rank = self.last.get(connection, (None, -1))
+        rank = rank + 1 if t == log_time_ns else 0
+        self.last[connection] = (log_time_ns, rank)
+        self.log_times.append(log_time_ns)
+        self.connection.append(connection)
+        self.rank.append(rank)
+
+    def index(self) -> MessageIndex:
+        return MessageIndex(np.array(self.log_times, np.int64), np.array(self.connection, np.int64),
+                            np.array(self.rank, np.int64))
+
+
+class RobotLog:
+    """An open robot recording (see the module docstring). Use as a context manager, or ``close()``.
+
+    Attributes, all read when it opens: ``paths``; ``topics`` (name -> :class:`TopicSummary`);
+    ``cameras`` and ``depth`` (name -> :class:`CameraStream`); ``lidars`` (name ->
+    :class:`LidarStream`); ``odometry`` (:class:`Odometry` or None); ``tf`` (:class:`TfTree`);
+    ``body_frame`` and ``odom_frame`` (str or None). Image and cloud data stay in the bag until
+    :meth:`image` / :meth:`images` / :meth:`cloud` / :meth:`clouds` read them.
+    """
+
+    def __init__(self, paths: str | os.PathLike | Sequence[str | os.PathLike],
+                 selection: Selection | Mapping | None = None):
+        if selection is not None and not isinstance(selection, Selection):
+            selection = Selection.from_data(selection)
+        self.paths = _bag_paths(paths)
+        self.name = str(self.paths[0]) + (f" (+{len(self.paths) - 1} more)" if len(self.paths) > 1 else "")
+        self._reader: AnyReader | None = _open_reader(self.paths, self.name)
+        try:
+            self._connections = {name: list(info.connections) for name, info in self._reader.topics.items()}
+            self.topics = {name: TopicSummary(name, info.msgtype, info.msgcount)
+                           for name, info in self._reader.topics.items()}
+            self._load(selection or Selection())
+        except BaseException:
+            self._reader.close()
+            raise
+
+    # ------------------------------------------------------------------ plumbing
+
+    def _where(self, topic: str, index: int | None = None) -> str:
+        return f"bag {self.name}: {topic}" + ("" if index is None else f" message {index}")
+
+    def _of_type(self, msgtypes: Sequence[str]) -> list[str]:
+        return sorted(t for t, s in self.topics.items() if s.msgtype in msgtypes)
+
+    def _require(self, topic: str, msgtypes: Sequence[str], what: str) -> str:
+        """``topic`` if the bag has it with one of ``msgtypes``; InputError naming it otherwise."""
+        short = " or ".join(t.rsplit("/", 1)[-1] for t in msgtypes)
+        if topic not in self.topics:
+            have = self._of_type(msgtypes)
+            close = difflib.get_close_matches(topic, list(self.topics), n=1)
+            hint = f"; did you mean {close[0]}?" if close else ""
+            raise InputError(f"{self._where(topic)}: no such topic ({what}){hint} (the bag's {short} topics: "
+                             f"{', '.join(have) if have else 'none'})")
+        msgtype = self.topics[topic].msgtype
+        if msgtype not in msgtypes:
+            raise InputError(f"{self._where(topic)}: is {msgtype or 'of several types'}, {what} needs {short}")
+        return topic
+
+    def _deserialize(self, raw: bytes, msgtype: str, topic: str, index: int):
+        try:
+            return self._reader.deserialize(raw, msgtype)
+        except (AnyReaderError, KeyError, ValueError, IndexError) as exc:
+            raise InputError(f"{self._where(topic, index)}: does not deserialize as {msgtype}: {exc}") from None
+
+    def _messages(self, connections: list, start: int | None = None, stop: int | None = None) -> Iterator:
+        if self._reader is None:
+            raise RuntimeError(f"RobotLog {self.name}: closed")
+        return self._reader.messages(connections=connections, start=start, stop=stop)
+
+    def _first(self, topic: str):
+        """The first message of ``topic``, deserialized, or None when it has none."""
+        messages = self._messages(self._connections[topic])
+        try:
+            for conn, _, raw in messages:
+                return self._deserialize(raw, conn.msgtype, topic, 0)
+            return None
+        finally:
+            messages.close()
+
+    # ------------------------------------------------------------------ choosing topics
+
+    def _base(self, image_topic: str) -> str:
+        """The raw image topic a compressed one was made from (``/a/image/compressed`` -> ``/a/image``)."""
+        if self.topics[image_topic].msgtype == COMPRESSED_IMAGE and image_topic.rsplit("/", 1)[-1] == "compressed":
+            return image_topic[: -len("/compressed")]
+        return image_topic
+
+    def _sibling_info(self, image_topic: str) -> tuple[str | None, str, int]:
+        """The CameraInfo topic of an image topic: ``camera_info`` in its namespace, or the only
+        CameraInfo topic there (``/a/b/image/compressed`` looks in ``/a/b/``). Returns it (or
+        None), the namespace and how many CameraInfo topics it has."""
+        namespace = self._base(image_topic).rsplit("/", 1)[0]
+        siblings = [t for t in self._of_type([CAMERA_INFO]) if t.rsplit("/", 1)[0] == namespace]
+        if namespace + "/camera_info" in siblings:
+            return namespace + "/camera_info", namespace, len(siblings)
+        return (siblings[0] if len(siblings) == 1 else None), namespace, len(siblings)
+
+    def _default_cameras(self) -> tuple[dict[str, CameraTopics], dict[str, CameraTopics]]:
+        found: dict[str, tuple[str, str, bool]] = {}  # topic -> (topic that names it, info topic, is depth)
+        for topic in self._of_type([IMAGE, COMPRESSED_IMAGE]):
+            compressed = self.topics[topic].msgtype == COMPRESSED_IMAGE
+            last = topic.rsplit("/", 1)[-1]
+            base = self._base(topic)
+            if base != topic and self.topics.get(base, TopicSummary(base, None, 0)).msgtype == IMAGE:
+                continue  # the raw topic is read instead
+            first = self._first(topic)
+            if compressed and (last == "compressedDepth" or
+                               (first is not None and "compresseddepth" in str(first.format).lower())):
+                log.warning("%s: compressedDepth images are not read; skipped", self._where(topic))
+                continue
+            info, namespace, _ = self._sibling_info(topic)
+            if info is None:
+                log.warning("%s: no CameraInfo topic in %s/; skipped (name it in the selection to read it)",
+                            self._where(topic), namespace)
+                continue
+            is_depth = not compressed and first is not None and first.encoding in DEPTH_ENCODINGS
+            found[topic] = (base, info, is_depth)
+        out: tuple[dict[str, CameraTopics], dict[str, CameraTopics]] = ({}, {})
+        for group, want_depth in zip(out, (False, True), strict=True):
+            names = _default_names({t: base for t, (base, _, d) in found.items() if d == want_depth})
+            for topic, name in names.items():
+                group[name] = CameraTopics(topic, found[topic][1])
+        return out
+
+    def _resolve(self, sel: Selection) -> tuple[dict, dict, dict, str | None, str | None, str | None]:
+        default_colour, default_depth = self._default_cameras() if sel.cameras is None or sel.depth is None else ({}, {})
+        cameras = dict(default_colour if sel.cameras is None else sel.cameras)
+        depth = dict(default_depth if sel.depth is None else sel.depth)
+        for group_name, group in (("cameras", cameras), ("depth", depth)):
+            for name, entry in group.items():
+                what = f"{group_name}.{name}"
+                self._require(entry.image, (IMAGE, COMPRESSED_IMAGE), what)
+                info = entry.info
+                if info is None:
+                    info, namespace, n = self._sibling_info(entry.image)
+                    if info is None:
+                        raise InputError(f"{self._where(entry.image)}: no CameraInfo for this image topic "
+                                         f"({n or 'no'} CameraInfo topics in {namespace}/; give {what}.info)")
+                else:
+                    self._require(info, (CAMERA_INFO,), f"{what}.info")
+                rectified = entry.rectified
+                if rectified is None:
+                    rectified = self._base(entry.image).rsplit("/", 1)[-1].startswith("image_rect")
+                group[name] = CameraTopics(entry.image, info, rectified)
+        if sel.lidar is None:
+            points = self._of_type([POINT_CLOUD])
+            names = _default_names({t: t for t in points})
+            lidar = {names[t]: t for t in points}
+        else:
+            lidar = {name: self._require(topic, (POINT_CLOUD,), f"lidar.{name}") for name, topic in sel.lidar.items()}
+        if sel.odometry is not None:
+            odometry = self._require(sel.odometry, (ODOMETRY,), "odometry")
+        else:
+            found = self._of_type([ODOMETRY])
+            odometry = found[0] if len(found) == 1 else None
+            if len(found) > 1:
+                log.warning("bag %s: several Odometry topics (%s); none read (choose one: odometry: TOPIC)",
+                            self.name, ", ".join(found))
+        tf = self._require(sel.tf, TF_TYPES, "tf") if sel.tf else (
+            "/tf" if self.topics.get("/tf", TopicSummary("", None, 0)).msgtype in TF_TYPES else None)
+        tf_static = self._require(sel.tf_static, TF_TYPES, "tf_static") if sel.tf_static else (
+            "/tf_static" if self.topics.get("/tf_static", TopicSummary("", None, 0)).msgtype in TF_TYPES else None)
+        return cameras, depth, lidar, odometry, tf, tf_static
+
+    # ------------------------------------------------------------------ the pass over the bag
+
+    def _load(self, sel: Selection) -> None:
+        cameras, depth, lidar, odometry_topic, tf_topic, tf_static_topic = self._resolve(sel)
+        gather: dict[str, _Topic] = {}
+        kinds: dict[str, str] = {}
+        info_modes: dict[str, set[bool]] = {}  # CameraInfo topic -> read as rectified, as raw, or both
+        for group in (cameras, depth):
+            for entry in group.values():
+                kinds[entry.image] = "image"
+                kinds[entry.info] = "info"
+                info_modes.setdefault(entry.info, set()).add(bool(entry.rectified))
+        kinds.update({topic: "points" for topic in lidar.values()})
+        if odometry_topic:
+            kinds[odometry_topic] = "odometry"
+        if tf_topic:
+            kinds[tf_topic] = "tf"
+        if tf_static_topic:
+            kinds[tf_static_topic] = "tf_static"
+        for topic in kinds:
+            gather[topic] = _Topic(topic)
+        conn_index = {(c.id, id(c.owner)): k for topic in kinds for k, c in enumerate(self._connections[topic])}
+        counts = dict.fromkeys(kinds, 0)
+        odom: dict[str, list] = {"pose": [], "linear": [], "angular": []}
+        static: dict[str, StaticLink] = {}
+        moving: dict[tuple[str, str], tuple[_Stamps, list[np.ndarray]]] = {}
+        connections = [c for topic in kinds for c in self._connections[topic]]
+        for conn, log_time, raw in (self._messages(connections) if connections else ()):
+            topic = conn.topic
+            i = counts[topic]
+            counts[topic] += 1
+            where = self._where(topic, i)
+            msg = self._deserialize(raw, conn.msgtype, topic, i)
+            g = gather[topic]
+            kind = kinds[topic]
+            if kind in ("image", "points", "odometry"):
+                g.place(conn_index[(conn.id, id(conn.owner))], log_time)
+                g.stamps.add(stamp_ns(msg.header), log_time, where)
+                if g.first is None:
+                    g.first, g.frame_id = msg, msg.header.frame_id.lstrip("/")
+            if kind == "image" and conn.msgtype == IMAGE:
+                self._check_image(g, msg, where)
+            elif kind == "info":
+                if g.first is None:
+                    g.first = msg
+                for rectified in sorted(info_modes[topic]):
+                    cam = camera_from_info(msg, rectified=rectified, where=where)
+                    if g.calibration.setdefault(rectified, cam) != cam:
+                        raise InputError(f"{where}: the calibration differs from message 0's; nsim takes one "
+                                         "per camera")
+            elif kind == "points":
+                names = [str(f.name) for f in msg.fields]
+                if missing := [c for c in "xyz" if c not in names]:
+                    raise InputError(f"{where}: PointCloud2 without {'/'.join(missing)} "
+                                     f"(fields: {', '.join(names) or 'none'})")
+            elif kind == "odometry":
+                if (msg.header.frame_id.lstrip("/"), msg.child_frame_id.lstrip("/")) != (
+                        g.first.header.frame_id.lstrip("/"), g.first.child_frame_id.lstrip("/")):
+                    raise InputError(f"{where}: frames {msg.header.frame_id!r} -> {msg.child_frame_id!r} differ from "
+                                     f"the first message's {g.first.header.frame_id!r} -> {g.first.child_frame_id!r}")
+                odom["pose"].append(_pose(msg.pose.pose, where))
+                tw = msg.twist.twist
+                odom["linear"].append([tw.linear.x, tw.linear.y, tw.linear.z])
+                odom["angular"].append([tw.angular.x, tw.angular.y, tw.angular.z])
+            elif kind in ("tf", "tf_static"):
+                for tr in msg.transforms:
+                    parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
+                    if not parent or not child or parent == child:
+                        log.warning("%s: transform %r -> %r ignored", where, parent, child)
+                        continue
+                    pose = _pose(tr.transform, f"{where} ({parent} -> {child})")
+                    if kind == "tf_static":
+                        static[child] = StaticLink(parent, child, pose)
+                        continue
+                    stamps, poses = moving.setdefault((parent, child), (_Stamps(), []))
+                    if stamps.add(stamp_ns(tr.header), log_time, f"{where} ({parent} -> {child})", strict=False):
+                        poses.append(pose)
+
+        self.tf = TfTree(tuple(static.values()), tuple(
+            MovingLink(p, c, np.array(s.stamps, np.int64), np.array(poses).reshape(-1, 4, 4))
+            for (p, c), (s, poses) in moving.items()))
+        tf_from_bag = sum(s.from_bag for s, _ in moving.values())
+        if tf_from_bag:
+            log.warning("%s: %d transforms have no header stamp; their bag times are used", self._where(tf_topic),
+                        tf_from_bag)
+        self.cameras = {name: self._camera_stream(name, e, gather) for name, e in cameras.items()}
+        self.depth = {name: self._camera_stream(name, e, gather, depth=True) for name, e in depth.items()}
+        self.lidars = {name: self._lidar_stream(name, topic, gather[topic]) for name, topic in lidar.items()}
+        self.odometry = None
+        if odometry_topic:
+            g = gather[odometry_topic]
+            self._warn_bag_stamps(g)
+            self.odometry = Odometry(
+                odometry_topic, g.first.header.frame_id.lstrip("/") if g.first else "",
+                g.first.child_frame_id.lstrip("/") if g.first else "", np.array(g.stamps.stamps, np.int64),
+                np.array(odom["pose"]).reshape(-1, 4, 4), np.array(odom["linear"], np.float64).reshape(-1, 3),
+                np.array(odom["angular"], np.float64).reshape(-1, 3), g.stamps.from_bag)
+        frames = self.tf.frames
+        self.body_frame = sel.body_frame or (self.odometry.child_frame_id if self.odometry and
+                                             self.odometry.child_frame_id else None) or next(
+            (f for f in BODY_FRAMES if f in frames), None)
+        self.odom_frame = sel.odom_frame or (self.odometry.frame_id if self.odometry and self.odometry.frame_id
+                                             else None) or ("odom" if "odom" in frames else None)
+
+    def _check_image(self, g: _Topic, msg, where: str) -> None:
+        """Encoding known and constant, size constant (the pixels are checked when decoded)."""
+        if msg.encoding not in IMAGE_ENCODINGS:
+            raise InputError(f"{where}: unknown image encoding {msg.encoding!r} (nsim reads {', '.join(IMAGE_ENCODINGS)})")
+        if g.encoding is None:
+            g.encoding, g.size = msg.encoding, (int(msg.width), int(msg.height))
+        elif msg.encoding != g.encoding or (int(msg.width), int(msg.height)) != g.size:
+            raise InputError(f"{where}: {msg.width}x{msg.height} {msg.encoding}, the topic began with "
+                             f"{g.size[0]}x{g.size[1]} {g.encoding}")
+
+    def _warn_bag_stamps(self, g: _Topic) -> None:
+        if g.stamps.from_bag:
+            log.warning("%s: %d of %d messages have no header stamp; their bag times are used",
+                        self._where(g.topic), g.stamps.from_bag, len(g.stamps.stamps))
+
+    def _camera_stream(self, name: str, entry: CameraTopics, gather: dict[str, _Topic], depth: bool = False) -> CameraStream:
+        g, info = gather[entry.image], gather[entry.info]
+        group = "depth" if depth else "cameras"
+        camera = info.calibration.get(bool(entry.rectified))
+        if camera is None:
+            raise InputError(f"{self._where(entry.info)}: no CameraInfo message for {group}.{name} ({entry.image})")
+        msgtype = self.topics[entry.image].msgtype
+        encoding = g.encoding or ""
+        if msgtype == COMPRESSED_IMAGE:
+            encoding = str(g.first.format) if g.first is not None else ""
+        if depth and msgtype == COMPRESSED_IMAGE:
+            raise InputError(f"{self._where(entry.image)}: depth.{name} is a CompressedImage; nsim reads depth from "
+                             "16UC1 or 32FC1 Image topics")
+        if depth and g.encoding is not None and g.encoding not in DEPTH_ENCODINGS + ("mono16",):
+            raise InputError(f"{self._where(entry.image, 0)}: depth.{name} has encoding {g.encoding!r}, not a depth "
+                             "encoding (16UC1 millimetres, 32FC1 metres)")
+        if g.size is not None and g.size != (camera.width, camera.height):
+            raise InputError(f"{self._where(entry.image, 0)}: the image is {g.size[0]}x{g.size[1]}, its CameraInfo "
+                             f"({entry.info}) says {camera.width}x{camera.height}")
+        self._warn_bag_stamps(g)
+        stream = CameraStream(name, entry.image, msgtype, entry.info, g.frame_id or (info.first.header.frame_id.lstrip("/")),
+                              camera, encoding, depth, np.array(g.stamps.stamps, np.int64), g.stamps.from_bag,
+                              g.index())
+        if msgtype == COMPRESSED_IMAGE and len(stream):
+            self._frame_checked(stream, g.first, 0)  # the first frame decodes, at the camera's size
+        return stream
+
+    def _lidar_stream(self, name: str, topic: str, g: _Topic) -> LidarStream:
+        self._warn_bag_stamps(g)
+        fields = tuple(str(f.name) for f in g.first.fields) if g.first is not None else ()
+        return LidarStream(name, topic, g.frame_id or "", fields, np.array(g.stamps.stamps, np.int64),
+                           g.stamps.from_bag, g.index())
+
+    # ------------------------------------------------------------------ reading frames
+
+    def _message(self, topic: str, messages: MessageIndex, i: int):
+        n = len(messages.log_time_ns)
+        if not 0 <= i < n:
+            raise IndexError(f"{topic}: message {i} out of range ({n} messages)")
+        conn = self._connections[topic][int(messages.connection[i])]
+        t = int(messages.log_time_ns[i])
+        rank = int(messages.rank[i])
+        found = self._messages([conn], start=t, stop=t + 1)
+        try:
+            for k, (c, _, raw) in enumerate(found):
+                if k == rank:
+                    return self._deserialize(raw, c.msgtype, topic, i)
+        finally:
+            found.close()
+        raise InputError(f"{self._where(topic, i)}: no longer found in the bag")
+
+    def _frame_checked(self, stream: CameraStream, msg, i: int) -> np.ndarray:
+        where = self._where(stream.topic, i)
+        if stream.msgtype == COMPRESSED_IMAGE:
+            image = read_compressed_image(msg, where=where)
+        else:
+            image = read_image(msg, depth_m=stream.is_depth, where=where)
+        cam = stream.camera
+        if image.shape[:2] != (cam.height, cam.width):
+            raise InputError(f"{where}: the image is {image.shape[1]}x{image.shape[0]}, its CameraInfo "
+                             f"({stream.info_topic}) says {cam.width}x{cam.height}")
+        return image
+
+    def image(self, stream: CameraStream, i: int) -> np.ndarray:
+        """Frame ``i`` of a camera or depth stream, decoded: ``(H, W, 3)`` uint8 RGB, ``(H, W)``
+        uint8/uint16 gray, or for depth ``(H, W)`` float32 metres (see :class:`CameraStream`)."""
+        return self._frame_checked(stream, self._message(stream.topic, stream.messages, i), i)
+
+    def images(self, stream: CameraStream) -> Iterator[tuple[int, np.ndarray]]:
+        """Every frame of a stream in order, ``(i, image)``, read in one pass (one frame in memory)."""
+        for i, msg in self._stream_messages(stream.topic, stream.messages):
+            yield i, self._frame_checked(stream, msg, i)
+
+    def _stream_messages(self, topic: str, messages: MessageIndex) -> Iterator[tuple[int, Any]]:
+        for i, (conn, log_time, raw) in enumerate(self._messages(self._connections[topic])):
+            if i >= len(messages.log_time_ns) or log_time != messages.log_time_ns[i]:
+                raise InputError(f"{self._where(topic, i)}: the bag changed while it was open")
+            yield i, self._deserialize(raw, conn.msgtype, topic, i)
+
+    def cloud(self, stream: LidarStream, i: int, *, finite_only: bool = False) -> LidarPoints:
+        """Cloud ``i`` of a LiDAR stream as :class:`nsim.io.rosbag.LidarPoints` (points in ``stream.frame_id``)."""
+        msg = self._message(stream.topic, stream.messages, i)
+        return lidar_points(msg, finite_only=finite_only, where=self._where(stream.topic, i))
+
+    def clouds(self, stream: LidarStream, *, finite_only: bool = False) -> Iterator[tuple[int, LidarPoints]]:
+        """Every cloud of a stream in order, ``(i, points)``, read in one pass."""
+        for i, msg in self._stream_messages(stream.topic, stream.messages):
+            yield i, lidar_points(msg, finite_only=finite_only, where=self._where(stream.topic, i))
+
+    # ------------------------------------------------------------------ frames and motion
+
+    def _body(self, body_frame: str | None) -> str:
+        body = (body_frame or self.body_frame or "").lstrip("/")
+        if not body:
+            raise InputError(f"bag {self.name}: the body frame is unknown (no Odometry, no {'/'.join(BODY_FRAMES)} "
+                             "frame in tf): give body_frame in the selection")
+        return body
+
+    def sensor_to_body(self, frame_id: str, body_frame: str | None = None) -> np.ndarray:
+        """``sensor_to_body (4, 4)`` of ``frame_id`` through /tf_static (see :meth:`TfTree.sensor_to_body`)."""
+        return self.tf.sensor_to_body(frame_id, self._body(body_frame))
+
+    def body_trajectory(self, source: str = "auto") -> Trajectory:
+        """The body's poses in the odom frame over time.
+
+        source: ``tf`` (the one moving link between odom and body on /tf, static links composed
+        in), ``odometry`` (the Odometry topic; its frames joined to odom_frame / body_frame through
+        /tf_static where they differ), or ``auto``: tf where it has a path, else odometry.
+        """
+        if source not in ("auto", "tf", "odometry"):
+            raise ValueError(f"source: expected auto, tf or odometry, got {source!r}")
+        body = self._body(None)
+        odom = self.odom_frame or (self.odometry.frame_id if self.odometry else None)
+        if not odom:
+            raise InputError(f"bag {self.name}: the odom frame is unknown: give odom_frame in the selection")
+        tf_error = None
+        if source in ("auto", "tf"):
+            try:
+                stamps, body_to_odom = self.tf.trajectory(odom, body)
+                return Trajectory(stamps, body_to_odom, odom, body, f"tf: {odom} -> {body}")
+            except InputError as exc:
+                if source == "tf" or self.odometry is None:
+                    raise
+                tf_error = exc
+        if self.odometry is None:
+            raise InputError(f"bag {self.name}: no Odometry topic to take the trajectory from")
+        o = self.odometry
+        child_to_body = np.eye(4) if o.child_frame_id == body else invert_se3(self.tf.static_transform(body, o.child_frame_id))
+        frame_to_odom = np.eye(4) if o.frame_id == odom else self.tf.static_transform(o.frame_id, odom)
+        body_to_odom = frame_to_odom @ o.child_to_parent @ invert_se3(child_to_body)
+        if tf_error is not None:
+            log.info("bag %s: trajectory from %s (%s)", self.name, o.topic, tf_error)
+        return Trajectory(o.stamps_ns.copy(), body_to_odom, odom, body, f"odometry {o.topic}")
+
+    # ------------------------------------------------------------------ lifetime
+
+    def close(self) -> None:
+        """Close the bag (idempotent); streams and arrays read so far stay usable."""
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
+
+    def __enter__(self) -> RobotLog:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+
+def _pose(transform, where: str) -> np.ndarray:
+    try:
+        return matrix_from_transform(transform)
+    except ValueError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+def _default_names(bases: Mapping[str, str]) -> dict[str, str]:
+    """Default stream names from topics (``bases``: topic -> the topic that names it)."""
+
+    def short(base: str) -> str:
+        parts = [p for p in base.split("/") if p]
+        if len(parts) > 1 and parts[-1] in GENERIC_TOPIC_PARTS:
+            parts = parts[:-1]
+        return "_".join(parts)
+
+    def full(base: str) -> str:
+        return "_".join(p for p in base.split("/") if p)
+
+    names = {t: short(b) for t, b in bases.items()}
+    clash = {n for n in names.values() if list(names.values()).count(n) > 1}
+    names = {t: full(bases[t]) if names[t] in clash else names[t] for t in bases}
+    seen: dict[str, int] = {}
+    for t in sorted(names):
+        n = names[t]
+        seen[n] = seen.get(n, 0) + 1
+        if seen[n] > 1:
+            names[t] = f"{n}_{seen[n]}"
+    return names
