@@ -8,7 +8,8 @@ from __future__ import annotations
 import click
 
 # module name under nsim.commands -> attribute holding the click command or group
-COMMAND_MODULES = ("capture", "reconstruct", "train_scene", "train_human", "simulate", "render", "evaluate", "export")
+COMMAND_MODULES = ("capture", "reconstruct", "train_scene", "train_human", "simulate", "render", "evaluate", "export",
+                   "import_log")
 
 
 def register_commands(group: click.Group) -> None:

@@ -97,6 +97,15 @@ def write_image(path: str | os.PathLike, rgb: np.ndarray) -> Path:
     return _encode_atomic(path, rgb[..., ::-1] if rgb.ndim == 3 else rgb)
 
 
+def write_png16(path: str | os.PathLike, grey_u16: np.ndarray) -> Path:
+    """Write an (H, W) uint16 grey image (a 16-bit camera's frame) as a lossless 16-bit PNG."""
+    path = Path(path)
+    grey_u16 = np.asarray(grey_u16)
+    if grey_u16.dtype != np.uint16 or grey_u16.ndim != 2 or 0 in grey_u16.shape:
+        raise ValueError(f"write_png16: expected non-empty (H, W) uint16, got {grey_u16.dtype} {grey_u16.shape}")
+    return _encode_atomic(path.with_suffix(".png") if path.suffix != ".png" else path, grey_u16)
+
+
 def write_depth_png_mm(path: str | os.PathLike, depth_m: np.ndarray) -> Path:
     """Write (H, W) depth in metres as a 16-bit PNG of whole millimetres (`rint(depth_m * 1000)`).
 

@@ -270,7 +270,7 @@ def lineage(store, scene_id: str) -> Lineage:
     summary = src.manifest.get("summary", {})
     ref = summary.get("file_inputs", {}).get("reference")
     gt_sha = store.get(cap).manifest["files"].get("gt_trajectory.tum", {}).get("sha256")
-    # reconstruct records a file input as sha256 of the file's hex digest (nsim.stages.reconstruct._digest_path)
+    # reconstruct records a file input as sha256 of the file's hex digest (nsim.workspace.store.sha256_path)
     gt_digests = {gt_sha, hashlib.sha256(gt_sha.encode()).hexdigest()} if gt_sha else set()
     aligned = summary.get("scale_source") == "reference" and ref in gt_digests
     how = ("Sim(3)-fitted to the capture's ground-truth trajectory" if aligned

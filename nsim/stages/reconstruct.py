@@ -40,7 +40,6 @@ digest, so that a rerun keeps the same id.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import logging
 import tempfile
@@ -154,28 +153,12 @@ class Outputs:
 # Action key: file inputs are digested by content
 
 
-def _digest_path(path: Path) -> str:
-    h = hashlib.sha256()
-    if path.is_dir():
-        for p in sorted(path.rglob("*")):
-            if p.is_file():
-                h.update(p.relative_to(path).as_posix().encode() + b"\0")
-                h.update(_file_digest(p).encode())
-    else:
-        h.update(_file_digest(path).encode())
-    return h.hexdigest()
-
-
-def _file_digest(path: Path) -> str:
-    from nsim.workspace.store import sha256_file
-
-    return sha256_file(path)[0]
-
-
 def file_digests(inputs: Inputs, import_digest: str | None = None) -> dict[str, str]:
     """Content digests of the file inputs; an import's files (names in the artifact and content) as one."""
+    from nsim.workspace.store import sha256_path
+
     files = {
-        name: _digest_path(Path(p))
+        name: sha256_path(Path(p))
         for name in ("source", "reference", "intrinsics", "import_transforms")
         if (p := getattr(inputs, name)) is not None
     }

@@ -71,7 +71,8 @@ log = logging.getLogger(__name__)
 FORMAT = 1
 MARKER = "nsim-workspace.json"
 MANIFEST = "manifest.json"
-KINDS = ("capture", "poses", "scene-checkpoint", "human-checkpoint", "trajectory", "render", "evaluation", "export")
+KINDS = ("capture", "poses", "scene-checkpoint", "human-checkpoint", "trajectory", "render", "evaluation", "export",
+         "recording")
 SUBDIRS = ("objects", "actions", "refs", "tmp", "leases", "verified", "trash")
 # Manifest fields that describe one run rather than the content; they do not enter the id.
 VOLATILE_FIELDS = ("id", "timing")
@@ -103,6 +104,24 @@ def sha256_file(path: Path) -> tuple[str, int]:
             h.update(chunk)
             size += len(chunk)
     return h.hexdigest(), size
+
+
+def sha256_path(path: Path) -> str:
+    """Content digest of a file input or a folder of them (every file's relative name and content).
+
+    For a file: the SHA-256 of its hex digest; for a folder: of each file's POSIX relative path and
+    hex digest, in sorted order. Renaming or editing any file changes it; timestamps do not.
+    """
+    path = Path(path)
+    h = hashlib.sha256()
+    if path.is_dir():
+        for p in sorted(path.rglob("*")):
+            if p.is_file():
+                h.update(p.relative_to(path).as_posix().encode() + b"\0")
+                h.update(sha256_file(p)[0].encode())
+    else:
+        h.update(sha256_file(path)[0].encode())
+    return h.hexdigest()
 
 
 def manifest_id(manifest: Mapping[str, Any]) -> str:

@@ -1,0 +1,28 @@
+"""``nsim import-log``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from nsim.commands.common import report_artifact, resolve_config, run_context, stage_options
+
+
+@click.command("import-log")
+@stage_options("import_log")
+@click.argument("log", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--selection", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="YAML choosing the topics (cameras, depth, lidar, odometry, tf, body_frame, odom_frame); "
+                   "default: by message type.")
+@click.pass_context
+def command(click_ctx, preset, config_file, overrides, force, tag, log, selection):
+    """Import a robot's recording: LOG is a ROS 2 bag directory (sqlite3 or mcap) or ROS 1 .bag file(s).
+    Writes a recording artifact: every camera, depth and LiDAR stream with stamps, intrinsics and
+    extrinsics, and the body's trajectory in the odometry frame."""
+    from nsim.stages import import_log
+
+    cfg = resolve_config(import_log.Config, "import_log", preset, config_file, overrides)
+    ctx = run_context(click_ctx, force)
+    out = import_log.run(import_log.Inputs(log=tuple(log), selection=selection), cfg, ctx)
+    report_artifact(ctx, out.recording, out.cache_hit, tag)

@@ -1,0 +1,271 @@
+"""``nsim import-log``: a robot's recording (a ROS 1 or ROS 2 bag) in, a ``recording`` artifact out.
+
+The bag is read with :class:`nsim.io.robot_log.RobotLog` (topics by a selection YAML or by
+message type, see its docstring): every camera, depth camera and LiDAR stream with its
+timestamps, its intrinsics (CameraInfo) and its extrinsic to the robot's body (/tf_static), and
+the body's trajectory in the odometry frame (/tf or nav_msgs/Odometry). Bag files are inputs by
+content (their digests enter the action key), so a re-recorded bag never serves a stale result.
+Everything is checked before anything is written: a bad bag is one line naming the topic (and
+message index), exit 2, nothing published.
+
+Artifact layout (kind ``recording``)::
+
+    recording.json       format, the bags (names, digests), body and odom frames, the trajectory's
+                         source, and per stream: kind (camera | depth | lidar), topic, frame_id,
+                         camera (nsim.geometry.Camera.to_dict), sensor_to_body (4 x 4), encoding,
+                         the frames kept (indices into the topic) and how many lie inside the
+                         trajectory's time span (within ``max_gap_s`` of a pose stamp)
+    trajectory.tum       body_to_odom at the trajectory's stamps (TUM: seconds, xyz, quaternion xyzw)
+    trajectory_ns.npy    the same stamps as int64 nanoseconds (TUM's float seconds round them)
+    <kind>/<name>/stamps_ns.npy          (N,) int64 header stamps of the frames kept
+    camera/<name>/NNNNNN.png             colour (RGB) or grey, as recorded (16-bit grey stays 16-bit)
+    depth/<name>/NNNNNN.exr              float32 metres, channel Z (inf: no return, NaN: invalid)
+    lidar/<name>/NNNNNN.exr              one row of N points: X, Y, Z (metres, the sensor's frame),
+                                         intensity, ring and time where the cloud has them
+    preview.png          the trajectory from above with the stream stamps, and each camera's first frame
+
+Stamps stay on the recording's own clocks (nanoseconds since the epoch, header stamps); the
+odometry frame stays the robot's. Registering the recording into a scene's world (the odometry
+frame's pose, the cameras' clock offset) is the next step's work.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.config import param
+from nsim.context import RunContext
+from nsim.errors import InputError
+
+STAGE = "import-log"
+VERSION = 1
+KINDS = ("camera", "depth", "lidar")
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    trajectory: str = param("auto", choices=("auto", "tf", "odometry"),
+                            help="the body's motion from /tf (odom -> body), the Odometry topic, or tf when it has "
+                                 "a path")
+    frame_stride: int = param(1, ge=1, help="keep every n-th frame of each stream")
+    max_frames: int = param(0, ge=0, help="then at most this many frames per stream, evenly spaced (0: all)")
+    max_gap_s: float = param(0.1, gt=0.0, help="a frame further than this from every trajectory stamp is counted as "
+                                                "outside the trajectory")
+
+
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """log: one ROS 2 bag directory (or its .db3 / .mcap), or one or more ROS 1 .bag files (a split
+    recording); selection: a YAML choosing topics (``nsim.io.robot_log.Selection``)."""
+
+    log: tuple[Path, ...]
+    selection: Path | None = None
+
+    def validate(self) -> None:
+        if not self.log:
+            raise InputError("import-log: give the bag to import")
+        for p in (*self.log, *([self.selection] if self.selection is not None else [])):
+            if not Path(p).exists():
+                raise InputError(f"{p}: no such file or directory")
+        if self.selection is not None and not Path(self.selection).is_file():
+            raise InputError(f"--selection {self.selection}: not a file")
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    recording: str
+    cache_hit: bool = False
+
+
+def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
+    from importlib import metadata
+
+    from nsim.workspace.store import sha256_path
+
+    files = {"log": [[Path(p).name, sha256_path(Path(p))] for p in inputs.log]}
+    if inputs.selection is not None:
+        files["selection"] = sha256_path(Path(inputs.selection))
+    return ctx.store.action_key(STAGE, VERSION, cfg, {}, seed=ctx.seed,
+                                extra={"files": files, "rosbags": metadata.version("rosbags")})
+
+
+def kept_frames(n: int, stride: int, max_frames: int) -> np.ndarray:
+    """Indices kept of ``n`` frames: every ``stride``-th, then at most ``max_frames`` evenly spaced (0: all)."""
+    idx = np.arange(0, n, stride, dtype=np.int64)
+    if max_frames and len(idx) > max_frames:
+        idx = idx[np.unique(np.round(np.linspace(0, len(idx) - 1, max_frames)).astype(np.int64))]
+    return idx
+
+
+def inside_trajectory(stamps_ns: np.ndarray, traj_ns: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """``(N,)`` bool: each stamp lies within the trajectory's span and within ``max_gap_s`` of a pose stamp."""
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    if len(traj_ns) == 0:
+        return np.zeros(len(stamps_ns), dtype=bool)
+    j = np.clip(np.searchsorted(traj_ns, stamps_ns), 1, max(1, len(traj_ns) - 1))
+    gap = np.minimum(np.abs(stamps_ns - traj_ns[j - 1]), np.abs(traj_ns[np.minimum(j, len(traj_ns) - 1)] - stamps_ns))
+    span = (stamps_ns >= traj_ns[0]) & (stamps_ns <= traj_ns[-1])
+    return span & (gap <= int(round(max_gap_s * 1e9)))
+
+
+def _streams(rl) -> list[tuple[str, str, Any]]:
+    """``(kind, name, stream)`` of every stream the log selected, in a fixed order."""
+    out = [("camera", n, s) for n, s in sorted(rl.cameras.items())]
+    out += [("depth", n, s) for n, s in sorted(rl.depth.items())]
+    out += [("lidar", n, s) for n, s in sorted(rl.lidars.items())]
+    return out
+
+
+def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
+    from nsim.io.robot_log import RobotLog, load_selection
+
+    inputs.validate()
+    store = ctx.store
+    key = action_key(inputs, cfg, ctx)
+    if not ctx.force and (hit := store.lookup(key)) is not None:
+        return Outputs(recording=hit.id, cache_hit=True)
+    selection = load_selection(inputs.selection) if inputs.selection is not None else None
+    t0 = time.perf_counter()
+    with RobotLog([Path(p) for p in inputs.log], selection) as rl:
+        streams = _streams(rl)
+        if not streams:
+            raise InputError(f"{rl.name}: no camera, depth or LiDAR topic selected (topics: "
+                             f"{', '.join(sorted(rl.topics)) or 'none'})")
+        traj = rl.body_trajectory(cfg.trajectory)
+        if len(traj.stamps_ns) < 2:
+            raise InputError(f"{rl.name}: the body trajectory ({traj.source}) has {len(traj.stamps_ns)} pose(s); "
+                             "registration needs the robot's motion")
+        # every check before the artifact is started: extrinsics, frames to keep
+        plan = []
+        for kind, name, s in streams:
+            extrinsic = rl.sensor_to_body(s.frame_id)
+            keep = kept_frames(len(s.stamps_ns), cfg.frame_stride, cfg.max_frames)
+            plan.append((kind, name, s, extrinsic, keep))
+        t_read = time.perf_counter() - t0
+        with store.publish(kind="recording", stage=STAGE, version=VERSION, key=key, config=cfg, inputs={},
+                           seed=ctx.seed) as out:
+            t1 = time.perf_counter()
+            doc = write_recording(out.dir, rl, traj, plan, inputs, cfg, ctx.show_progress)
+            out.summary.update({
+                "streams": {f"{k}/{n}": len(keep) for k, n, _, _, keep in plan},
+                "trajectory_poses": int(len(traj.stamps_ns)),
+                "trajectory_length_m": round(doc["trajectory"]["length_m"], 3),
+                "duration_s": round(doc["trajectory"]["duration_s"], 3),
+            })
+            out.timing.update({"read_index_s": round(t_read, 2), "write_s": round(time.perf_counter() - t1, 2)})
+    return Outputs(recording=out.ref)
+
+
+def write_recording(out_dir: Path, rl, traj, plan: list, inputs: Inputs, cfg: Config,
+                    show_progress: bool) -> dict[str, Any]:
+    """Write the artifact's files (module docstring) from an open ``RobotLog``; returns recording.json's content."""
+    from nsim.io.exr import write_depth_exr, write_points_exr
+    from nsim.io.images import write_image, write_png16
+    from nsim.io.tum import Trajectory, write_tum
+    from nsim.progress import progress_bar
+
+    np.save(out_dir / "trajectory_ns.npy", traj.stamps_ns.astype(np.int64), allow_pickle=False)
+    write_tum(out_dir / "trajectory.tum", Trajectory.from_poses(traj.stamps_ns / 1e9, traj.body_to_odom))
+    steps = np.linalg.norm(np.diff(traj.body_to_odom[:, :3, 3], axis=0), axis=-1)
+    doc: dict[str, Any] = {
+        "format": 1,
+        "bags": [{"name": Path(p).name} for p in inputs.log],
+        "time": "int64 nanoseconds, the messages' header stamps (each stream on its sensor's clock)",
+        "body_frame": traj.body_frame, "odom_frame": traj.odom_frame,
+        "trajectory": {"source": traj.source, "poses": int(len(traj.stamps_ns)),
+                       "duration_s": float((traj.stamps_ns[-1] - traj.stamps_ns[0]) / 1e9),
+                       "length_m": float(steps.sum()), "file": "trajectory.tum",
+                       "meaning": "body_to_odom: the body's pose in the odometry frame"},
+        "streams": {},
+    }
+    total = sum(len(keep) for *_, keep in plan)
+    with progress_bar(total, "importing frames", show_progress) as bar:
+        done, last_log = 0, time.monotonic()
+        for kind, name, s, extrinsic, keep in plan:
+            d = out_dir / kind / name
+            d.mkdir(parents=True)
+            wanted = set(keep.tolist())
+            source = rl.clouds(s) if kind == "lidar" else rl.images(s)
+            for i, data in source:
+                if i not in wanted:
+                    continue
+                path = d / f"{i:06d}"
+                if kind == "camera":
+                    if data.dtype == np.uint16:
+                        write_png16(path.with_suffix(".png"), data)
+                    else:
+                        write_image(path.with_suffix(".png"), data)
+                elif kind == "depth":
+                    write_depth_exr(path.with_suffix(".exr"), data, {"nsim_depth": "z-depth, metres"})
+                else:
+                    channels = {"X": data.xyz_m[:, 0], "Y": data.xyz_m[:, 1], "Z": data.xyz_m[:, 2]}
+                    channels |= {f: v for f in ("intensity", "ring", "time") if (v := getattr(data, f)) is not None}
+                    write_points_exr(path.with_suffix(".exr"), {  # one row of N points
+                        k: np.asarray(v, dtype=np.uint32 if k == "ring" else np.float32)[None, :]
+                        for k, v in channels.items()})
+                done += 1
+                bar.advance()
+                if not show_progress and time.monotonic() - last_log > 10.0:
+                    log.info("import-log: %d / %d frames written", done, total)
+                    last_log = time.monotonic()
+            stamps = s.stamps_ns[keep]
+            np.save(d / "stamps_ns.npy", stamps.astype(np.int64), allow_pickle=False)
+            inside = inside_trajectory(stamps, traj.stamps_ns, cfg.max_gap_s)
+            entry = {"kind": kind, "topic": s.topic, "frame_id": s.frame_id,
+                     "sensor_to_body": np.asarray(extrinsic).tolist(), "frames": [int(i) for i in keep],
+                     "frames_in_topic": len(s.stamps_ns), "inside_trajectory": int(inside.sum()),
+                     "stamps_from_bag": int(s.stamps_from_bag), "dir": f"{kind}/{name}"}
+            if kind == "lidar":
+                entry["fields"] = list(s.fields)
+            else:
+                entry |= {"camera": s.camera.to_dict(), "encoding": s.encoding, "info_topic": s.info_topic}
+            if len(stamps) and inside.sum() < len(stamps):
+                log.warning("import-log: %s %s: %d of %d frames lie outside the trajectory (%s) by more than %g s",
+                            kind, name, len(stamps) - int(inside.sum()), len(stamps), traj.source, cfg.max_gap_s)
+            doc["streams"][f"{kind}/{name}"] = entry
+    (out_dir / "recording.json").write_text(json.dumps(doc, indent=1) + "\n")
+    write_preview(out_dir / "preview.png", out_dir, doc, traj)
+    return doc
+
+
+def write_preview(path: Path, out_dir: Path, doc: dict[str, Any], traj) -> None:
+    """The trajectory from above, coloured by time, and each camera's first kept frame, labelled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import cv2
+    import matplotlib.pyplot as plt
+
+    cams = [(k, v) for k, v in doc["streams"].items() if v["kind"] == "camera" and v["frames"]]
+    cols = 1 + min(len(cams), 5)
+    fig, axes = plt.subplots(1, cols, figsize=(4.0 * cols, 4.0), squeeze=False)
+    ax = axes[0, 0]
+    xy = traj.body_to_odom[:, :2, 3]
+    t = (traj.stamps_ns - traj.stamps_ns[0]) / 1e9
+    sc = ax.scatter(xy[:, 0], xy[:, 1], c=t, s=4, cmap="viridis")
+    ax.plot(xy[0, 0], xy[0, 1], "k^", label="start")
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x in {doc['odom_frame']} (m)")
+    ax.set_ylabel(f"y in {doc['odom_frame']} (m)")
+    ax.set_title(f"body trajectory ({doc['trajectory']['source']})\n{doc['trajectory']['length_m']:.1f} m, "
+                 f"{doc['trajectory']['duration_s']:.1f} s", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.colorbar(sc, ax=ax, label="time (s)", fraction=0.046)
+    for a, (k, v) in zip(axes[0, 1:], cams, strict=False):
+        img = cv2.imread(str(out_dir / v["dir"] / f"{v['frames'][0]:06d}.png"), cv2.IMREAD_UNCHANGED)
+        img = img[..., ::-1] if img.ndim == 3 else img
+        a.imshow(img, cmap="gray" if img.ndim == 2 else None)
+        a.set_title(f"{k}: {v['camera']['model']} {v['camera']['width']}x{v['camera']['height']}\n"
+                    f"{len(v['frames'])} frames, {v['topic']}", fontsize=8)
+        a.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
