@@ -1,25 +1,33 @@
 """ROS bags with the ``rosbags`` library (no ROS installation needed): export of rendered sensor
 data, and the one place where ROS messages become arrays and back.
 
-``BagWriter`` takes a run tick by tick and writes (``NS`` = the optional ``namespace``):
+``BagWriter`` writes a run message by message (``NS`` = the optional ``namespace``):
 
-================================  ============================  ===========================================
-topic                             type                          content
-================================  ============================  ===========================================
-``NS/<camera>/image``             sensor_msgs/msg/Image         ``rgb8`` (H, W, 3) or ``mono8`` (H, W)
-``NS/<camera>/depth``             sensor_msgs/msg/Image         ``32FC1`` metres (inf = no return, NaN = invalid)
-``NS/<camera>/camera_info``       sensor_msgs/msg/CameraInfo    with every image or depth of that camera
-``NS/<lidar>/points``             sensor_msgs/msg/PointCloud2   returns only: x y z intensity (float32), ring (uint16)
-``/tf``                           tf2_msgs/msg/TFMessage        ``odom -> body`` at every tick
-``/tf_static``                    tf2_msgs/msg/TFMessage        ``body -> <sensor frame>`` once (latched)
-``NS/odom``                       nav_msgs/msg/Odometry         body pose in ``odom``, body-frame twist
-================================  ============================  ===========================================
+================================  ===============================  ======================================================
+topic                             type                             content
+================================  ===============================  ======================================================
+``NS/<camera>/image``             sensor_msgs/msg/Image            ``rgb8`` (H, W, 3) or ``mono8`` (H, W)
+``NS/<camera>/image/compressed``  sensor_msgs/msg/CompressedImage  JPEG bytes as given (``rgb8; jpeg compressed bgr8``)
+``NS/<camera>/depth``             sensor_msgs/msg/Image            ``32FC1`` metres (inf = no return, NaN = invalid)
+``NS/<camera>/camera_info``       sensor_msgs/msg/CameraInfo       with every image, JPEG or depth of that camera
+``NS/<lidar>/points``             sensor_msgs/msg/PointCloud2      returns only: x y z intensity (float32), ring (uint16)
+``/tf``                           tf2_msgs/msg/TFMessage           ``odom -> body`` with every odometry
+``/tf_static``                    tf2_msgs/msg/TFMessage           ``body -> <sensor frame>`` once (latched)
+``NS/odom``                       nav_msgs/msg/Odometry            body pose in ``odom``, body-frame twist
+================================  ===============================  ======================================================
 
 Frames: ``odom`` is the world of the run, ``body`` the robot's body (x forward, y left, z up).
 A camera ``c``'s data is in frame ``c_optical`` (OpenCV axes, as ROS requires of image frames, REP
-103), a LiDAR ``l``'s in frame ``l`` (x forward, y left, z up). Times: message stamps and bag times
-are ``time_offset_ns + round(t_s * 1e9)``. Twist: the backward difference of consecutive ticks,
-expressed in the body frame (zero at the first tick).
+103), a LiDAR ``l``'s in frame ``l`` (x forward, y left, z up).
+
+Times: each call carries its own stamp, so every sensor can have its own clock:
+:meth:`BagWriter.write_odometry` (``/tf`` and ``odom``) and :meth:`BagWriter.write_sensors` (images,
+JPEGs, depth, CameraInfo, clouds) at any stamps, :meth:`BagWriter.write_tick` both at one. A
+stamp is ``time_offset_ns + round(t_s * 1e9)``, or exactly ``time_offset_ns + t_ns``; it is the
+messages' header stamp and their bag time, must not be negative, and must increase from message to
+message *on each topic* (topics may interleave in any order). ``/tf_static`` carries the first
+call's stamp. Twist: the backward difference of consecutive odometry calls, expressed in the body
+frame (zero at the first).
 
 CameraInfo: ``K`` and ``P = [K | 0]`` in OpenCV's pixel convention (the same as nsim's), ``R = I``;
 ``distortion_model`` ``plumb_bob`` with ``D = (k1, k2, p1, p2, k3)`` for PINHOLE (zeros) and OPENCV,
@@ -41,9 +49,10 @@ Messages to arrays (ROS 1 or ROS 2 messages alike; bad content raises
 :func:`read_compressed_image`, :func:`camera_from_info`, :func:`read_pointcloud` (any field layout)
 and :func:`lidar_points`, :func:`matrix_from_transform` (ROS quaternions are xyzw; nsim's wxyz
 never appear here because only matrices leave this module), :func:`stamp_ns`. Arrays to messages:
-:func:`image_message`, :func:`depth_message`, :func:`compressed_image_message`,
-:func:`camera_info_message`, :func:`pointcloud_message`, :func:`points_message`, each for either
-typestore (``store=``), and :func:`build_message` for any other message of either store.
+:func:`image_message`, :func:`depth_message`, :func:`compressed_image_message` (from pixels, or JPEG
+bytes as they are), :func:`camera_info_message`, :func:`pointcloud_message`, :func:`points_message`,
+each for either typestore (``store=``), and :func:`build_message` for any other message of either
+store.
 :mod:`nsim.io.robot_log` reads whole recordings with these.
 """
 
@@ -245,11 +254,31 @@ def depth_message(t_ns: int, frame_id: str, depth_m: np.ndarray, *, encoding: st
                 encoding="32FC1", is_bigendian=0, step=w * 4, data=np.ascontiguousarray(depth).view(np.uint8).reshape(-1))
 
 
-def compressed_image_message(t_ns: int, frame_id: str, image: np.ndarray, fmt: str = "jpeg", *, store=TYPESTORE):
-    """sensor_msgs/CompressedImage of an RGB ``(H, W, 3)`` or gray ``(H, W)`` uint8 image (gray
-    uint16 too for ``png``), encoded with OpenCV as ``image_transport``'s compressed plugin does
-    (colour stored as BGR). fmt: ``jpeg`` (quality 95) or ``png``. The format string says
-    ``"<encoding>; <fmt> compressed <stored encoding>"``."""
+def compressed_image_message(t_ns: int, frame_id: str, image: np.ndarray | bytes, fmt: str = "jpeg", *,
+                             store=TYPESTORE):
+    """sensor_msgs/CompressedImage as ``image_transport``'s compressed plugin writes it, with the
+    format string ``"<encoding>; <fmt> compressed <stored encoding>"``.
+
+    image: an RGB ``(H, W, 3)`` or gray ``(H, W)`` uint8 array (gray uint16 too for ``png``),
+    encoded here with OpenCV (colour stored as BGR) as fmt ``jpeg`` (quality 95) or ``png``; or
+    the bytes of a JPEG already encoded (fmt ``jpeg``), written as they are: a JPEG of 3
+    components (e.g. ``nsim.synth.phone.encode_jpeg``'s; decoders give BGR) is ``rgb8; jpeg
+    compressed bgr8``, one of 1 component ``mono8; jpeg compressed mono8``. Bytes that are not a
+    JPEG raise ValueError.
+    """
+    if isinstance(image, (bytes, bytearray, memoryview)):
+        if fmt != "jpeg":
+            raise ValueError(f"compressed image: encoded bytes must be a JPEG (fmt jpeg), got fmt {fmt!r}")
+        data = bytes(image)
+        channels = jpeg_components(data)
+        if channels == 3:
+            encoding, stored = "rgb8", "bgr8"
+        elif channels == 1:
+            encoding = stored = "mono8"
+        else:
+            raise ValueError(f"compressed image: a JPEG of {channels} components (ROS has 1 or 3)")
+        return build_message(store, "sensor_msgs/msg/CompressedImage", header=_header(t_ns, frame_id, store),
+                             format=f"{encoding}; jpeg compressed {stored}", data=np.frombuffer(data, np.uint8).copy())
     image = np.asarray(image)
     if fmt not in ("jpeg", "png"):
         raise ValueError(f"compressed image: fmt must be jpeg or png, got {fmt!r}")
@@ -266,6 +295,37 @@ def compressed_image_message(t_ns: int, frame_id: str, image: np.ndarray, fmt: s
         raise ValueError(f"compressed image: OpenCV could not encode {fmt}")
     return build_message(store, "sensor_msgs/msg/CompressedImage", header=_header(t_ns, frame_id, store),
                 format=f"{encoding}; {fmt} compressed {stored}", data=buf.reshape(-1).astype(np.uint8))
+
+
+#: JPEG markers that start a frame header (SOF0..SOF15 but DHT, JPG and DAC).
+_JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def jpeg_components(data: bytes) -> int:
+    """The number of colour components of JPEG ``data`` (1 gray, 3 colour), read from its frame
+    header without decoding; ValueError when ``data`` is not a JPEG or has no frame header before
+    its first scan."""
+    if data[:3] != b"\xff\xd8\xff":
+        raise ValueError(f"JPEG: the data ({len(data)} bytes) does not start with a JPEG marker")
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            break
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            i += 2
+            continue
+        if marker in _JPEG_FRAME_MARKERS:
+            if i + 10 > len(data):
+                break
+            return data[i + 9]
+        if marker in (0xDA, 0xD9):  # a scan or the end before any frame header
+            break
+        i += 2 + int.from_bytes(data[i + 2:i + 4], "big")
+    raise ValueError(f"JPEG: no frame header in the data ({len(data)} bytes)")
 
 
 def camera_info_message(t_ns: int, frame_id: str, camera: Camera, *, store=TYPESTORE):
@@ -577,14 +637,22 @@ def lidar_points(msg, *, finite_only: bool = False, where: str = "points") -> Li
 
 
 class BagWriter:
-    """Writes a ROS 2 or ROS 1 bag incrementally, one simulation tick at a time (see the module docstring).
+    """Writes a ROS 2 or ROS 1 bag incrementally, call by call (see the module docstring).
 
-    ``with BagWriter(out / "run", rig) as bag: bag.write_tick(t_s, body_to_world, images=..., ...)``.
+    ``with BagWriter(out / "run", rig) as bag: bag.write_tick(t_s, body_to_world, images=..., ...)``, or
+    with a clock per sensor: ``bag.write_odometry(t_s, body_to_world)`` and ``bag.write_sensors(t_s,
+    images=..., compressed_images=..., depths=..., clouds=...)`` at their own stamps.
 
     path: the bag directory to create (see :func:`check_bag_destination`; InputError otherwise). rig: gives the static transforms, the
     frame of each sensor and the CameraInfo of each camera; without one, pass ``static_transforms``
     (``{frame_id: frame_to_body (4, 4)}``) and ``infos`` yourself. storage: ``sqlite3`` | ``mcap``
     (a ROS 2 bag directory) | ``ros1`` (one ROS 1 bag file, whose name must end in ``.bag``).
+
+    Times: every ``write_*`` takes ``t_s`` (seconds) or, exactly, ``t_ns`` (integer nanoseconds):
+    one of the two. The stamp is ``time_offset_ns + round(t_s * 1e9)`` or ``time_offset_ns +
+    t_ns``: the header stamp and the bag time of everything the call writes. A negative stamp, or
+    one that is not after the previous stamp on a topic the call writes, raises ValueError and the
+    call writes nothing.
     """
 
     def __init__(
@@ -629,7 +697,9 @@ class BagWriter:
             shutil.rmtree(self._tmp_dir, ignore_errors=True)
             raise
         self._connections: dict[str, object] = {}
-        self._last: tuple[int, np.ndarray] | None = None
+        self._last_stamp_ns: dict[str, int] = {}  # topic -> its latest stamp
+        self._last_odometry: tuple[int, np.ndarray] | None = None  # (stamp, body_to_odom) of the last odometry
+        self._wrote_statics = False
         self._closed = False
 
     # ------------------------------------------------------------------ plumbing
@@ -651,6 +721,47 @@ class BagWriter:
         raw = store.serialize_ros1(msg, msg.__msgtype__) if self.storage == "ros1" else store.serialize_cdr(msg, msg.__msgtype__)
         self._writer.write(conn, t_ns, bytes(raw))
 
+    def _stamp_ns(self, t_s: float | None, t_ns: int | None) -> int:
+        """The stamp of a call given ``t_s`` or ``t_ns`` (checked: one of them, finite, not negative)."""
+        if self._closed:
+            raise RuntimeError("BagWriter: already closed")
+        if (t_s is None) == (t_ns is None):
+            raise TypeError("BagWriter: give the time as t_s (seconds) or t_ns (integer nanoseconds), one of them")
+        if t_ns is not None:
+            if isinstance(t_ns, bool) or not isinstance(t_ns, (int, np.integer)):
+                raise TypeError(f"t_ns: expected integer nanoseconds, got {t_ns!r}")
+            stamp = self.time_offset_ns + int(t_ns)
+        else:
+            if not math.isfinite(t_s):
+                raise ValueError(f"t_s: expected a finite time, got {t_s}")
+            stamp = self.time_offset_ns + int(round(t_s * 1e9))
+        if stamp < 0:
+            raise ValueError(f"t_s: the stamp {stamp} ns is negative (bag times start at 0)")
+        return stamp
+
+    def _seconds(self, stamp_ns: int) -> float:
+        return (stamp_ns - self.time_offset_ns) / 1e9
+
+    def _emit(self, t_ns: int, messages: list[tuple[str, object]]) -> None:
+        """Write ``(topic, message)`` pairs at ``t_ns`` after checking every topic's order (all or nothing);
+        the first call that writes anything writes /tf_static before."""
+        for topic, _ in messages:
+            last = self._last_stamp_ns.get(topic)
+            if last is not None and t_ns <= last:
+                raise ValueError(f"{topic}: stamps must be increasing on each topic, got {self._seconds(t_ns)} s "
+                                 f"after {self._seconds(last)} s")
+        if not messages:
+            return
+        if not self._wrote_statics:
+            self._wrote_statics = True
+            if self.static_transforms:
+                statics = [self._tf(t_ns, self.body_frame, child, T_) for child, T_ in self.static_transforms.items()]
+                self._write("/tf_static", build_message(self._store, "tf2_msgs/msg/TFMessage", transforms=statics), t_ns,
+                            latched=True)
+        for topic, msg in messages:
+            self._write(topic, msg, t_ns)
+            self._last_stamp_ns[topic] = t_ns
+
     def _tf(self, t_ns: int, parent: str, child: str, pose: np.ndarray):
         return build_message(self._store, "geometry_msgs/msg/TransformStamped", header=_header(t_ns, parent, self._store),
                     child_frame_id=child, transform=_transform_msg(pose, self._store))
@@ -662,62 +773,99 @@ class BagWriter:
             return self.rig[name].camera
         return None
 
+    def _odometry_messages(self, t_ns: int, robot_pose: np.ndarray) -> tuple[np.ndarray, list[tuple[str, object]]]:
+        pose = np.asarray(robot_pose, dtype=np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise ValueError(f"robot_pose: expected a finite (4, 4), got shape {pose.shape}")
+        odom_to_body = [self._tf(t_ns, self.odom_frame, self.body_frame, pose)]
+        tf = build_message(self._store, "tf2_msgs/msg/TFMessage", transforms=odom_to_body)
+        return pose, [("/tf", tf), (self._topic("odom"), self._odometry(t_ns, pose))]
+
+    def _sensor_messages(self, t_ns: int, images, depths, compressed_images, clouds, infos) -> list[tuple[str, object]]:
+        out, with_info = [], []
+        store = self._store
+        for name, image in (images or {}).items():
+            out.append((self._topic(name, "image"), image_message(t_ns, camera_frame(name), image, store=store)))
+            with_info.append(name)
+        for name, data in (compressed_images or {}).items():
+            try:
+                msg = compressed_image_message(t_ns, camera_frame(name), data, "jpeg", store=store)
+            except ValueError as exc:
+                raise ValueError(f"compressed_images[{name!r}]: {exc}") from None
+            out.append((self._topic(name, "image", "compressed"), msg))
+            with_info.append(name)
+        for name, depth in (depths or {}).items():
+            out.append((self._topic(name, "depth"), depth_message(t_ns, camera_frame(name), depth, store=store)))
+            with_info.append(name)
+        for name in dict.fromkeys(with_info):
+            camera = self._camera_for(name, infos)
+            if camera is not None:
+                info = camera_info_message(t_ns, camera_frame(name), camera, store=store)
+                out.append((self._topic(name, "camera_info"), info))
+        for name, scan in (clouds or {}).items():
+            out.append((self._topic(name, "points"), pointcloud_message(t_ns, name, scan, store=store)))
+        return out
+
     # ------------------------------------------------------------------ public
+
+    def write_odometry(self, t_s: float | None, robot_pose: np.ndarray, *, t_ns: int | None = None) -> None:
+        """Write the robot's pose ``robot_pose`` (``body_to_odom (4, 4)``) at ``t_s`` (or ``t_ns``):
+        ``/tf`` ``odom -> body`` and ``NS/odom``, whose twist is the backward difference from the
+        previous ``write_odometry`` (or ``write_tick``) call."""
+        stamp = self._stamp_ns(t_s, t_ns)
+        pose, messages = self._odometry_messages(stamp, robot_pose)
+        self._emit(stamp, messages)
+        self._last_odometry = (stamp, pose)
+
+    def write_sensors(
+        self,
+        t_s: float | None = None,
+        *,
+        t_ns: int | None = None,
+        images: Mapping[str, np.ndarray] | None = None,
+        depths: Mapping[str, np.ndarray] | None = None,
+        compressed_images: Mapping[str, bytes] | None = None,
+        clouds: Mapping[str, OrganizedScan] | None = None,
+        infos: Mapping[str, Camera] | None = None,
+    ) -> None:
+        """Write sensor data taken at ``t_s`` (or ``t_ns``), each camera's CameraInfo once with it.
+
+        images: camera name -> ``(H, W, 3)`` RGB or ``(H, W)`` gray (uint8, or float in [0, 1]);
+        compressed_images: camera name -> JPEG bytes, written as they are (see
+        :func:`compressed_image_message`); depths: camera name -> ``(H, W)`` metres; clouds: LiDAR
+        name -> its sweep (points in the sensor frame); infos: camera name -> intrinsics,
+        overriding the rig's (a camera with neither gets no CameraInfo).
+        """
+        stamp = self._stamp_ns(t_s, t_ns)
+        self._emit(stamp, self._sensor_messages(stamp, images, depths, compressed_images, clouds, infos))
 
     def write_tick(
         self,
-        t_s: float,
+        t_s: float | None,
         robot_pose: np.ndarray,
         images: Mapping[str, np.ndarray] | None = None,
         depths: Mapping[str, np.ndarray] | None = None,
         clouds: Mapping[str, OrganizedScan] | None = None,
         infos: Mapping[str, Camera] | None = None,
+        *,
+        compressed_images: Mapping[str, bytes] | None = None,
+        t_ns: int | None = None,
     ) -> None:
-        """Write one tick at time ``t_s`` (seconds, increasing from tick to tick).
-
-        robot_pose: ``body_to_world (4, 4)``. images: camera name -> ``(H, W, 3)`` RGB or ``(H, W)``
-        gray (uint8, or float in [0, 1]); depths: camera name -> ``(H, W)`` metres; clouds: LiDAR
-        name -> its sweep (points in the sensor frame); infos: camera name -> intrinsics, overriding
-        the rig's (a camera with neither gets no CameraInfo).
-        """
-        if self._closed:
-            raise RuntimeError("BagWriter: already closed")
-        if not math.isfinite(t_s):
-            raise ValueError(f"t_s: expected a finite time, got {t_s}")
-        t_ns = self.time_offset_ns + int(round(t_s * 1e9))
-        pose = np.asarray(robot_pose, dtype=np.float64)
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            raise ValueError(f"robot_pose: expected a finite (4, 4), got shape {pose.shape}")
-        if self._last is not None and t_ns <= self._last[0]:
-            raise ValueError(f"t_s: ticks must be increasing, got {t_s} after {(self._last[0] - self.time_offset_ns) / 1e9}")
-        if self._last is None and self.static_transforms:
-            statics = [self._tf(t_ns, self.body_frame, child, T_) for child, T_ in self.static_transforms.items()]
-            self._write("/tf_static", build_message(self._store, "tf2_msgs/msg/TFMessage", transforms=statics), t_ns, latched=True)
-        odom_to_body = [self._tf(t_ns, self.odom_frame, self.body_frame, pose)]
-        self._write("/tf", build_message(self._store, "tf2_msgs/msg/TFMessage", transforms=odom_to_body), t_ns)
-        self._write(self._topic("odom"), self._odometry(t_ns, pose), t_ns)
-        with_info = []
-        for name, image in (images or {}).items():
-            self._write(self._topic(name, "image"), image_message(t_ns, camera_frame(name), image, store=self._store), t_ns)
-            with_info.append(name)
-        for name, depth in (depths or {}).items():
-            self._write(self._topic(name, "depth"), depth_message(t_ns, camera_frame(name), depth, store=self._store), t_ns)
-            with_info.append(name)
-        for name in dict.fromkeys(with_info):
-            camera = self._camera_for(name, infos)
-            if camera is not None:
-                info = camera_info_message(t_ns, camera_frame(name), camera, store=self._store)
-                self._write(self._topic(name, "camera_info"), info, t_ns)
-        for name, scan in (clouds or {}).items():
-            self._write(self._topic(name, "points"), pointcloud_message(t_ns, name, scan, store=self._store), t_ns)
-        self._last = (t_ns, pose)
+        """Write one tick at time ``t_s`` (or ``t_ns``): :meth:`write_odometry` of ``robot_pose``
+        and :meth:`write_sensors` of the rest, all at that one stamp (checked together: an error
+        writes nothing)."""
+        stamp = self._stamp_ns(t_s, t_ns)
+        pose, messages = self._odometry_messages(stamp, robot_pose)
+        messages += self._sensor_messages(stamp, images, depths, compressed_images, clouds, infos)
+        self._emit(stamp, messages)
+        self._last_odometry = (stamp, pose)
 
     def _odometry(self, t_ns: int, pose: np.ndarray):
         linear = np.zeros(3)
         angular = np.zeros(3)
-        if self._last is not None:
-            dt = (t_ns - self._last[0]) * 1e-9
-            prev = self._last[1]
+        if self._last_odometry is not None and t_ns > self._last_odometry[0]:  # else _emit refuses the stamp
+            dt = (t_ns - self._last_odometry[0]) * 1e-9
+            prev = self._last_odometry[1]
             linear = pose[:3, :3].T @ (pose[:3, 3] - prev[:3, 3]) / dt
             angular = Rotation.from_matrix(prev[:3, :3].T @ pose[:3, :3]).as_rotvec() / dt
         store = self._store

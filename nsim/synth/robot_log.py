@@ -3,18 +3,21 @@
 What a Spot log recorded in a real room looks like, but with exact ground truth: the rig's
 cameras, depth cameras and LiDARs rendered by ``RoomOracle`` along the robot's true trajectory,
 then degraded as real sensors and real robots degrade them, and written as a ROS bag through
-``nsim.io.rosbag.BagWriter``. ``write_robot_log`` also writes ``<bag>.truth.json``: what an
-importer must recover (the odometry frame's pose in the room, the clock offset) and the true
-trajectory to score it against.
+``nsim.io.rosbag.BagWriter`` (read it back with ``nsim.io.robot_log.RobotLog``).
+``write_robot_log`` also writes ``<bag>.truth.json``: what an importer must recover (the odometry
+frame's pose in the room, the clock offset) and the true trajectory to score it against.
 
 Frames and clocks
     ``world``: the room's frame (metres, z up). ``odom``: the frame of the robot's odometry, whose
     pose in the world is ``odom_to_world`` (``RobotLogFaults.odom_frame_yaw_deg`` about +z, then
     ``odom_frame_xyz_m``): the robot does not know where the room is. ``body``: the robot's body
-    (x forward, y left, z up); ``body_to_world (N, 4, 4)`` is the truth at the odometry stamps
-    ``stamps_s (N,)``. The odometry and the LiDARs share one clock; the cameras' clock runs
-    ``clock_offset_s`` ahead of it: a camera frame stamped ``s`` was captured at odometry time
-    ``s - clock_offset_s``, and shows the true pose of that instant.
+    (x forward, y left, z up); ``body_to_world (N, 4, 4)`` is the truth at the ticks ``stamps_s
+    (N,)``. Every sensor samples at every tick i, at the true pose ``body_to_world[i]``. The
+    odometry, the depth images and the LiDARs are stamped on one clock, the odometry's: tick i at
+    ``stamps_s[i]``. The cameras' clock runs ``clock_offset_s`` ahead of it: the colour frames of
+    tick i are stamped ``stamps_s[i] + clock_offset_s``, so a frame stamped ``s`` was captured at
+    odometry time ``s - clock_offset_s``. In the bag the offset is exact: camera stamp - odometry
+    stamp = ``round(clock_offset_s * 1e9)`` ns at every tick (``log_stamps_ns``).
 
 The faults (``RobotLogFaults``; ``RobotLogFaults.none()`` turns every one off), in the order applied:
 
@@ -22,8 +25,11 @@ cameras (per camera, ``camera_faults``)
     the oracle's colour decoded to linear light, times an auto-exposure gain that drifts smoothly
     over the run (``exposure_gains``: ``nsim.synth.phone.smooth_drift`` in stops, one independent
     drift per camera), shot and read noise, the white level (``nsim.synth.phone.develop``); then
-    the rig's own exposure and colour (``CameraSensor.expose``), 8 bits, and a JPEG round trip at
-    ``jpeg_quality`` (``nsim.synth.phone.encode_jpeg``, 4:2:0).
+    the rig's own exposure and colour (``CameraSensor.expose``), 8 bits, then JPEG at
+    ``jpeg_quality`` (``nsim.synth.phone.encode_jpeg``, 4:2:0): the bag holds those very bytes as
+    sensor_msgs/CompressedImage on ``/<camera>/image/compressed`` (a gray camera's JPEG holds equal
+    R, G and B: encode_jpeg writes colour only). ``jpeg_quality`` None: raw sensor_msgs/Image on
+    ``/<camera>/image``.
 depth (per depth-emitting camera, ``depth_faults``)
     the rig's depth model (``nsim.sensors.depth.apply_depth_model``: kind, maximum range,
     quantisation) with the faults' noise and a minimum range of ``max(rig min_m,
@@ -52,6 +58,7 @@ The core functions are pure (arrays in, arrays out); ``write_robot_log`` does th
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -78,7 +85,7 @@ DEPTH_TAG = 0x10D3
 LIDAR_TAG = 0x10D4
 
 TRUTH_FORMAT = "nsim-robot-log-truth"
-TRUTH_VERSION = 1
+TRUTH_VERSION = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,13 +190,17 @@ def odometry_from_truth(body_to_world: np.ndarray, stamps_s: np.ndarray, faults:
     return out
 
 
-def camera_capture_times_s(stamps_s: np.ndarray, faults: RobotLogFaults) -> np.ndarray:
-    """When, on the odometry clock, the camera frames stamped ``stamps_s (N,)`` were captured: ``(N,)``.
+def log_stamps_ns(stamps_s: np.ndarray, faults: RobotLogFaults) -> tuple[np.ndarray, np.ndarray]:
+    """The bag's stamps of the ticks at ``stamps_s (N,)`` (odometry clock, seconds): ``(odometry_ns,
+    camera_ns)``, both ``(N,)`` int64 nanoseconds.
 
-    The log stamps each tick's camera frames with the tick's stamp (``BagWriter`` writes one
-    stamp per tick), so a frame stamped ``t`` was captured at ``t - clock_offset_s``.
+    odometry_ns (odometry, /tf, depth, LiDAR) is ``round(stamps_s * 1e9)``; camera_ns (the colour
+    frames, on the camera clock) is ``odometry_ns + round(clock_offset_s * 1e9)``: exactly the
+    offset apart, whatever the rounding of the seconds.
     """
-    return np.asarray(stamps_s, dtype=np.float64) - faults.clock_offset_s
+    odometry_ns = np.array([int(round(float(t) * 1e9)) for t in np.asarray(stamps_s, dtype=np.float64).reshape(-1)],
+                           dtype=np.int64)
+    return odometry_ns, odometry_ns + np.int64(int(round(faults.clock_offset_s * 1e9)))
 
 
 # ---------------------------------------------------------------------------------- cameras
@@ -209,30 +220,36 @@ def exposure_gains(times_s: np.ndarray, faults: RobotLogFaults, rng: np.random.G
     return np.exp2(smooth_drift(rng, times.size, faults.exposure_drift_std_stops, sigma_frames))
 
 
+def jpeg_bytes(image_u8: np.ndarray, quality: int) -> bytes:
+    """The JPEG (``nsim.synth.phone.encode_jpeg`` at ``quality``) of ``image_u8``: (H, W, 3) RGB or
+    (H, W) gray uint8; a gray image is encoded as equal R, G, B (a 3-component JPEG)."""
+    image = np.asarray(image_u8)
+    return encode_jpeg(np.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image, quality)
+
+
 def jpeg_round_trip(image_u8: np.ndarray, quality: int) -> np.ndarray:
-    """``image_u8`` ((H, W, 3) RGB or (H, W) gray, uint8) after JPEG encoding at ``quality`` and
-    decoding: the same shape and dtype. Gray images go through JPEG as equal R, G, B."""
+    """``image_u8`` ((H, W, 3) RGB or (H, W) gray, uint8) after ``jpeg_bytes`` at ``quality`` and
+    decoding: the same shape and dtype (gray: the mean of the decoded R, G, B, which are equal)."""
     import cv2
 
     image = np.asarray(image_u8)
-    gray = image.ndim == 2
-    rgb = np.repeat(image[..., None], 3, axis=-1) if gray else image
-    data = encode_jpeg(rgb, quality)
+    data = jpeg_bytes(image, quality)
     out = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
-    if gray:
+    if image.ndim == 2:
         return np.rint(out.mean(axis=-1)).astype(np.uint8)
     return np.ascontiguousarray(out)
 
 
 def camera_faults(rgb: np.ndarray, exposure_gain: float, sensor: CameraSensor, faults: RobotLogFaults,
-                  rng: np.random.Generator) -> np.ndarray:
+                  rng: np.random.Generator, *, jpeg: bool = True) -> np.ndarray:
     """The image ``sensor`` records, uint8 ``(H, W, 3)`` (or ``(H, W)`` for a gray camera), from the
     oracle's colour ``rgb (H, W, 3)`` in [0, 1] at this frame's auto-exposure gain.
 
     Linear light times the gain plus shot and read noise, clipped (``phone.develop``; skipped when
     there is neither gain nor noise, so a clean log holds the oracle's pixels exactly), then
-    ``sensor.expose``, 8 bits and the JPEG round trip. ``rng`` gives the noise (``H * W * 3``
-    normals when there is noise).
+    ``sensor.expose``, 8 bits and the JPEG round trip (``jpeg_quality``; ``jpeg`` False: the image
+    before it, whose ``jpeg_bytes`` the log holds). ``rng`` gives the noise (``H * W * 3`` normals
+    when there is noise).
     """
     from nsim.io.images import to_uint8
     from nsim.sensors.rig import _srgb_to_linear
@@ -247,7 +264,7 @@ def camera_faults(rgb: np.ndarray, exposure_gain: float, sensor: CameraSensor, f
         rgb = develop(_srgb_to_linear(np.clip(rgb, 0.0, 1.0)), float(exposure_gain), np.ones(3),
                       np.ones((H, W), dtype=np.float32), phone, rng)
     image = to_uint8(sensor.expose(rgb))
-    if faults.jpeg_quality is not None:
+    if jpeg and faults.jpeg_quality is not None:
         image = jpeg_round_trip(image, faults.jpeg_quality)
     return image
 
@@ -335,18 +352,18 @@ def write_robot_log(
     the test room ``room_spec``, with ``faults``, as a bag at ``out_path`` (``BagWriter``'s
     ``storage``), then its ground truth beside it (``truth_path``); returns that truth.
 
-    Tick i writes the odometry (``odometry_from_truth``) and the LiDAR sweeps, rendered at the true
-    pose ``body_to_world[i]``, stamped ``stamps_s[i]``; and the camera images and depth, stamped
-    ``stamps_s[i]`` too but captured at ``stamps_s[i] - clock_offset_s`` (``camera_capture_times_s``;
-    the true pose there is interpolated: positions linearly, rotations by slerp). Ticks whose capture
-    time lies outside ``[stamps_s[0], stamps_s[-1]]`` have no camera frames.
+    Tick i renders every sensor at the true pose ``body_to_world[i]`` and writes (``log_stamps_ns``):
+    the odometry (``odometry_from_truth``), the depth images and the LiDAR sweeps stamped
+    ``stamps_s[i]``; the colour frames stamped ``stamps_s[i] + clock_offset_s`` on the camera
+    clock (JPEG bytes as CompressedImage, or raw Image when ``jpeg_quality`` is None). Messages go
+    into the bag in stamp order, so any offset works; one that would stamp a frame before time 0
+    raises ValueError.
 
     oracle: a ``RoomOracle`` of ``room_spec`` already built (skips baking the textures).
     supersample: the oracle's sub-pixel rays per axis for colour. Raises ``InputError`` when the
     bag or its truth file exists already (or the folder cannot take them) before any rendering;
     an error while writing leaves neither.
     """
-    from nsim.crowd.scenario import interpolate_poses
     from nsim.io import atomic_path
     from nsim.io.rosbag import BagWriter
 
@@ -358,14 +375,40 @@ def write_robot_log(
         raise InputError(f"{truth_file}: exists already; a robot log's truth is never overwritten")
     n = body.shape[0]
     odom = odometry_from_truth(body, stamps, faults, _rng(seed, ODOM_TAG))
-    capture_s = camera_capture_times_s(stamps, faults)
-    tol = 1e-9
-    camera_ticks = np.nonzero((capture_s >= stamps[0] - tol) & (capture_s <= stamps[-1] + tol))[0]
-    camera_body = interpolate_poses(stamps, body, capture_s[camera_ticks])
-    slot = {int(t): j for j, t in enumerate(camera_ticks)}
+    odometry_ns, camera_ns = log_stamps_ns(stamps, faults)
+    if min(odometry_ns[0], camera_ns[0]) < 0:
+        raise ValueError(f"stamps_s: the first tick at {stamps[0]} s with a camera clock offset of "
+                         f"{faults.clock_offset_s} s stamps data before time 0")
     index = {s.name: k for k, s in enumerate(rig.sensors)}
-    gains = {s.name: exposure_gains(capture_s[camera_ticks], faults, _rng(seed, EXPOSURE_TAG, index[s.name]))
+    gains = {s.name: exposure_gains(stamps, faults, _rng(seed, EXPOSURE_TAG, index[s.name]))
              for s in rig.cameras if s.emits_image}
+    # what is written when: (stamp, 0: odometry, depth and LiDAR / 1: colour, tick), in stamp order
+    events = [(int(t), 0, i) for i, t in enumerate(odometry_ns)]
+    if gains:
+        events += [(int(t), 1, i) for i, t in enumerate(camera_ns)]
+    events.sort()
+    sides = 2 if gains else 1
+
+    def render(i: int) -> dict[str, dict]:
+        """Every reading of tick i, at the true pose ``body[i]``."""
+        out: dict[str, dict] = {"images": {}, "compressed_images": {}, "depths": {}, "clouds": {}}
+        for s in rig.cameras:
+            k = index[s.name]
+            view = oracle.render_gt(s.camera, s.world_pose(body[i]), supersample=supersample)
+            if s.emits_image:
+                image = camera_faults(view.rgb, float(gains[s.name][i]), s, faults, _rng(seed, CAMERA_TAG, i, k),
+                                      jpeg=False)
+                if faults.jpeg_quality is None:
+                    out["images"][s.name] = image
+                else:
+                    out["compressed_images"][s.name] = jpeg_bytes(image, faults.jpeg_quality)
+            if s.emits_depth:
+                out["depths"][s.name] = depth_faults(view.depth_range, s, faults, _rng(seed, DEPTH_TAG, i, k))
+        for s in rig.lidars:
+            hits = oracle.cast_rays(*s.rays(body[i]))
+            ranges = lidar_faults(hits.t.reshape(s.ray_shape), s, faults, _rng(seed, LIDAR_TAG, i, index[s.name]))
+            out["clouds"][s.name] = s.scan(ranges)
+        return out
 
     with BagWriter(out_path, rig, storage=storage) as bag:  # checks the destination before any rendering
         if oracle is None:
@@ -374,23 +417,25 @@ def write_robot_log(
             oracle = RoomOracle(room_spec)
         elif oracle.spec != room_spec:
             raise ValueError("oracle: built for another room than room_spec")
-        for i in range(n):
-            images, depths, clouds = {}, {}, {}
-            if i in slot:
-                for s in rig.cameras:
-                    k = index[s.name]
-                    view = oracle.render_gt(s.camera, s.world_pose(camera_body[slot[i]]), supersample=supersample)
-                    if s.emits_image:
-                        images[s.name] = camera_faults(view.rgb, float(gains[s.name][slot[i]]), s, faults,
-                                                       _rng(seed, CAMERA_TAG, i, k))
-                    if s.emits_depth:
-                        depths[s.name] = depth_faults(view.depth_range, s, faults, _rng(seed, DEPTH_TAG, i, k))
-            for s in rig.lidars:
-                hits = oracle.cast_rays(*s.rays(body[i]))
-                ranges = lidar_faults(hits.t.reshape(s.ray_shape), s, faults, _rng(seed, LIDAR_TAG, i, index[s.name]))
-                clouds[s.name] = s.scan(ranges)
-            bag.write_tick(float(stamps[i]), odom[i], images=images, depths=depths, clouds=clouds)
-            log.debug("robot log %s: tick %d/%d", out_path.name, i + 1, n)
+        pending: dict[int, tuple[dict[str, dict], list[int]]] = {}  # tick -> (readings, sides written)
+        for t_ns, group in itertools.groupby(events, key=lambda e: e[0]):
+            sensors: dict[str, dict] = {"images": {}, "compressed_images": {}, "depths": {}, "clouds": {}}
+            odometry_tick = None
+            for _, side, i in group:  # at most one odometry tick and one camera tick share a stamp
+                if i not in pending:
+                    pending[i] = (render(i), [])
+                    log.debug("robot log %s: tick %d/%d rendered", out_path.name, i + 1, n)
+                readings, done = pending[i]
+                for key in (("depths", "clouds") if side == 0 else ("images", "compressed_images")):
+                    sensors[key].update(readings[key])
+                if side == 0:
+                    odometry_tick = i
+                done.append(side)
+                if len(done) == sides:
+                    del pending[i]
+            if odometry_tick is not None:
+                bag.write_odometry(None, odom[odometry_tick], t_ns=t_ns)
+            bag.write_sensors(t_ns=t_ns, **sensors)
 
     truth = {
         "format": TRUTH_FORMAT,
@@ -405,20 +450,21 @@ def write_robot_log(
         },
         "odom_to_world": odom_to_world(faults).tolist(),
         "clock_offset_s": faults.clock_offset_s,
-        "clock": "camera stamp = capture time on the odometry clock + clock_offset_s; LiDAR and odometry share "
-                 "the odometry clock",
+        "clock": "every sensor samples at every tick i, at the true pose body_to_world[i]; odometry, /tf, depth and "
+                 "LiDAR are stamped stamps_ns[i] (the odometry clock), the colour frames camera_frames.stamps_ns[i] "
+                 "= stamps_ns[i] + round(clock_offset_s * 1e9) (the camera clock)",
         "odometry_drift_model": "per tick: the true relative motion with translation * (1 + odom_scale_error_percent"
                                 " / 100) + odom_xy_walk_m_per_sqrt_m * sqrt(d) * N(0, I2) in body xy, and a body-z"
                                 " yaw of odom_yaw_drift_deg_per_m * d + odom_yaw_rate_bias_deg_per_s * dt +"
                                 " odom_yaw_walk_deg_per_sqrt_m * sqrt(d) * N(0, 1) before its rotation; tick 0 exact",
         "faults": to_dict(faults),
         "stamps_s": stamps.tolist(),
+        "stamps_ns": odometry_ns.tolist(),
         "body_to_world": body.tolist(),
         "camera_frames": {
-            "ticks": camera_ticks.tolist(),
-            "stamps_s": stamps[camera_ticks].tolist(),
-            "capture_times_s": capture_s[camera_ticks].tolist(),
-            "body_to_world": camera_body.tolist(),
+            "stamps_ns": camera_ns.tolist(),
+            "capture_times_s": stamps.tolist(),
+            "topic": "/<camera>/image" if faults.jpeg_quality is None else "/<camera>/image/compressed",
             "exposure_gains": {name: g.tolist() for name, g in gains.items()},
         },
         "room": room_spec.to_dict(),
@@ -432,14 +478,15 @@ def write_robot_log(
 
 __all__ = [
     "RobotLogFaults",
-    "camera_capture_times_s",
     "camera_faults",
     "depth_faults",
     "depth_holes",
     "exposure_gains",
     "faulty_depth_config",
+    "jpeg_bytes",
     "jpeg_round_trip",
     "lidar_faults",
+    "log_stamps_ns",
     "odom_to_world",
     "odometry_from_truth",
     "truth_path",

@@ -1,25 +1,33 @@
-"""ROS 2 bag export: write a few ticks, read them back with rosbags' Reader, compare every value."""
+"""ROS bag export: write a few ticks, read them back with rosbags' readers and nsim's RobotLog, compare every value."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import Reader
 
 from nsim.errors import InputError
 from nsim.geometry import Camera, make_se3
+from nsim.io.robot_log import RobotLog
 from nsim.io.rosbag import (
     TYPESTORE,
     BagWriter,
     check_bag_destination,
+    compressed_image_message,
+    jpeg_components,
     matrix_from_transform,
+    read_compressed_image,
     read_image,
     read_pointcloud,
+    stamp_ns,
 )
 from nsim.sensors import Rig
+from nsim.synth.phone import encode_jpeg
 
 
 @pytest.fixture(scope="module")
@@ -202,3 +210,118 @@ def test_bag_destination_unwritable_parent(tmp_path):
             check_bag_destination(locked / "bag")
     finally:
         locked.chmod(0o700)
+
+
+# ---------------------------------------------------------------------------- a clock per sensor, JPEG
+
+
+def _any_messages(path: Path) -> dict[str, list]:
+    """topic -> [(bag time, message)] of a ROS 1 or ROS 2 bag."""
+    out: dict[str, list] = {}
+    with AnyReader([path]) as reader:
+        for conn, t_ns, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t_ns, reader.deserialize(raw, conn.msgtype)))
+    return out
+
+
+def _header(msg):
+    return msg.transforms[0].header if hasattr(msg, "transforms") else msg.header
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap", "ros1"])
+def test_sensors_with_their_own_stamps_and_jpeg(tmp_path, rig, storage):
+    """Odometry, depth and LiDAR at 10 Hz; the cameras' clock 30 ms ahead, one of them JPEG."""
+    path = tmp_path / ("run.bag" if storage == "ros1" else "run")
+    rng = np.random.default_rng(1)
+    lidar = rig["lidar"]
+    t0, dt, offset = 1_000_000_000, 100_000_000, 30_000_000
+    jpegs, grays = [], []
+    with BagWriter(path, rig, storage=storage) as bag:
+        for k, pose in enumerate(_poses(3)):
+            depth = rng.uniform(0.2, 5.0, size=(12, 16)).astype(np.float32)
+            scan = lidar.scan(rng.uniform(1.0, 9.0, size=lidar.ray_shape))
+            bag.write_odometry(None, pose, t_ns=t0 + k * dt)
+            bag.write_sensors(t_ns=t0 + k * dt, depths={"front": depth}, clouds={"lidar": scan})
+            jpegs.append(encode_jpeg(rng.integers(0, 256, size=(12, 16, 3), dtype=np.uint8), 90))
+            grays.append(rng.integers(0, 256, size=(6, 8), dtype=np.uint8))
+            bag.write_sensors(t_ns=t0 + k * dt + offset, compressed_images={"front": jpegs[-1]}, images={"cam": grays[-1]})
+    msgs = _any_messages(path)
+    odom_ns = [t0 + k * dt for k in range(3)]
+    camera_ns = [t + offset for t in odom_ns]
+    stamps = {topic: [stamp_ns(_header(m)) for _, m in ms] for topic, ms in msgs.items()}
+    for topic, ms in msgs.items():  # the bag time is the header stamp
+        assert [t for t, _ in ms] == stamps[topic], topic
+    assert stamps == {
+        "/tf_static": [t0], "/tf": odom_ns, "/odom": odom_ns, "/front/depth": odom_ns, "/lidar/points": odom_ns,
+        "/front/image/compressed": camera_ns, "/cam/image": camera_ns, "/cam/camera_info": camera_ns,
+        "/front/camera_info": sorted(odom_ns + camera_ns),  # with the depth and with the JPEG
+    }
+    for (_, msg), data in zip(msgs["/front/image/compressed"], jpegs, strict=True):
+        assert (msg.format, msg.header.frame_id) == ("rgb8; jpeg compressed bgr8", "front_optical")
+        assert bytes(msg.data) == data  # as given, not encoded again
+    # the twist differences the odometry calls only (0.1 s apart), whatever was written between them
+    tw = msgs["/odom"][2][1].twist.twist
+    p1, p2 = _poses(3)[1], _poses(3)[2]
+    np.testing.assert_allclose([tw.linear.x, tw.linear.y, tw.linear.z], p2[:3, :3].T @ (p2[:3, 3] - p1[:3, 3]) / 0.1,
+                               atol=1e-9)
+    np.testing.assert_allclose([tw.angular.x, tw.angular.y, tw.angular.z], [0.0, 0.0, 0.2], atol=1e-9)
+
+    with RobotLog(path) as log:
+        front, cam = log.cameras["front"], log.cameras["cam"]
+        assert front.msgtype == "sensor_msgs/msg/CompressedImage" and front.encoding == "rgb8; jpeg compressed bgr8"
+        assert front.camera == rig["front"].camera and cam.camera.K.tolist() == rig["cam"].camera.K.tolist()
+        for stream in (front, cam):
+            assert (stream.stamps_ns - log.odometry.stamps_ns).tolist() == [offset] * 3
+        assert log.depth["front"].stamps_ns.tolist() == log.lidars["lidar"].stamps_ns.tolist() == odom_ns
+        for i, data in enumerate(jpegs):
+            decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+            np.testing.assert_array_equal(log.image(front, i), decoded)
+            np.testing.assert_array_equal(log.image(cam, i), grays[i])
+        np.testing.assert_allclose(log.body_trajectory().body_to_odom, np.stack(_poses(3)), atol=1e-12)
+
+
+def test_time_order_is_per_topic(tmp_path, rig):
+    gray = np.zeros((6, 8), np.uint8)
+    with BagWriter(tmp_path / "run", rig) as bag:
+        bag.write_sensors(0.2, images={"cam": gray})
+        bag.write_odometry(0.1, np.eye(4))  # before the image, on other topics
+        with pytest.raises(ValueError, match=r"^/cam/image: stamps must be increasing on each topic, got 0.15 s after 0.2 s"):
+            bag.write_tick(0.15, np.eye(4), images={"cam": gray})
+        bag.write_odometry(0.15, np.eye(4))  # the failed tick wrote nothing, /odom included
+        with pytest.raises(ValueError, match="increasing"):
+            bag.write_odometry(0.15, np.eye(4))
+        with pytest.raises(TypeError, match="t_s .* or t_ns"):
+            bag.write_sensors(0.3, t_ns=300_000_000, images={"cam": gray})
+        with pytest.raises(TypeError, match="t_s .* or t_ns"):
+            bag.write_sensors(images={"cam": gray})
+        with pytest.raises(ValueError, match="negative"):
+            bag.write_odometry(-0.5, np.eye(4))
+        with pytest.raises(ValueError, match=r"compressed_images\['cam'\]: JPEG"):
+            bag.write_sensors(0.3, compressed_images={"cam": b"not a jpeg"})
+        bag.write_sensors(t_ns=300_000_001, images={"cam": gray})
+    msgs = _messages(tmp_path / "run")
+    assert [t for t, _ in msgs["/odom"]] == [100_000_000, 150_000_000]
+    assert [t for t, _ in msgs["/cam/image"]] == [200_000_000, 300_000_001]
+    assert [t for t, _ in msgs["/tf_static"]] == [200_000_000]  # the first call's stamp
+    assert msgs["/odom"][1][1].twist.twist.linear.x == 0.0  # the pose did not move
+
+
+def test_compressed_image_message_from_bytes():
+    rgb = np.random.default_rng(2).integers(0, 256, size=(10, 14, 3), dtype=np.uint8)
+    data = encode_jpeg(rgb, 80)
+    assert jpeg_components(data) == 3
+    msg = compressed_image_message(7, "f", data)
+    assert msg.format == "rgb8; jpeg compressed bgr8" and msg.data.tobytes() == data
+    np.testing.assert_array_equal(read_compressed_image(msg),
+                                  cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[..., ::-1])
+    ok, gray = cv2.imencode(".jpg", rgb[..., 0])
+    assert ok and jpeg_components(gray.tobytes()) == 1
+    mono = compressed_image_message(7, "f", gray.tobytes())
+    assert mono.format == "mono8; jpeg compressed mono8" and read_compressed_image(mono).shape == (10, 14)
+    # the array path encodes as before: the same format string
+    assert compressed_image_message(7, "f", rgb).format == msg.format
+    with pytest.raises(ValueError, match="fmt jpeg"):
+        compressed_image_message(7, "f", data, "png")
+    for bad in (b"", b"\x89PNG\r\n", data[:2] + b"\xff\xda" + data[4:]):
+        with pytest.raises(ValueError, match="JPEG"):
+            compressed_image_message(7, "f", bad)

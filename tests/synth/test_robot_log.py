@@ -1,28 +1,33 @@
-"""The robot log of the test room: each fault against its configured size, and the bag read back."""
+"""The robot log of the test room: each fault against its configured size, and the bag read back with RobotLog."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
 
+import cv2
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from nsim.crowd.scenario import interpolate_poses, yaw_poses_se3
+from nsim.crowd.scenario import yaw_poses_se3
 from nsim.errors import ConfigError, InputError
 from nsim.io.images import to_uint8
-from nsim.io.rosbag import matrix_from_transform, read_image, read_pointcloud
+from nsim.io.robot_log import RobotLog
+from nsim.io.rosbag import stamp_ns
 from nsim.sensors.rig import CameraSensor, Rig, _linear_to_srgb, _srgb_to_linear, load_rig
 from nsim.synth.oracle import RoomOracle
 from nsim.synth.robot_log import (
+    CAMERA_TAG,
     RobotLogFaults,
-    camera_capture_times_s,
     camera_faults,
     depth_faults,
     depth_holes,
     exposure_gains,
+    jpeg_bytes,
+    jpeg_round_trip,
     lidar_faults,
+    log_stamps_ns,
     odom_to_world,
     odometry_from_truth,
     truth_path,
@@ -146,9 +151,13 @@ def test_odometry_is_seeded_and_leaves_its_inputs_alone(room):
         odometry_from_truth(body, stamps[::-1], RobotLogFaults(), np.random.default_rng(7))
 
 
-def test_camera_capture_times_lag_the_stamps_by_the_clock_offset():
-    stamps = np.array([1.0, 1.1, 1.2])
-    np.testing.assert_allclose(camera_capture_times_s(stamps, _faults(clock_offset_s=0.03)), stamps - 0.03)
+def test_camera_stamps_are_exactly_the_clock_offset_ahead():
+    stamps = np.arange(50) * 0.1 + 12.5  # seconds that do not round trip through ns in float arithmetic
+    for offset_s in (0.03, -0.05, 0.0, 0.123456789):
+        odometry_ns, camera_ns = log_stamps_ns(stamps, _faults(clock_offset_s=offset_s))
+        assert odometry_ns.dtype == camera_ns.dtype == np.int64
+        assert odometry_ns.tolist() == [round(t * 1e9) for t in stamps]
+        assert (camera_ns - odometry_ns).tolist() == [round(offset_s * 1e9)] * 50
 
 
 # ---------------------------------------------------------------------------------- cameras
@@ -209,6 +218,17 @@ def test_jpeg_frames_differ_from_clean_by_a_bounded_amount(room, small_rig):
     assert psnr > 30.0 and err.mean() < 4.0, (psnr, err.mean())
     gray = camera_faults(rgb[:30, :40], 1.0, small_rig["gray"], _faults(jpeg_quality=85), np.random.default_rng(0))
     assert gray.shape == (30, 40) and gray.dtype == np.uint8
+    # the frame is the decoded JPEG of the image before it, whose bytes the log holds
+    before = camera_faults(rgb, 1.0, small_rig["rgbd"], _faults(jpeg_quality=85), np.random.default_rng(0), jpeg=False)
+    np.testing.assert_array_equal(before, clean.astype(np.uint8))
+    np.testing.assert_array_equal(out, jpeg_round_trip(before, 85))
+    data = jpeg_bytes(before, 85)
+    assert data[:2] == b"\xff\xd8"
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+    np.testing.assert_array_equal(decoded, out)
+    gray_bytes = cv2.imdecode(np.frombuffer(jpeg_bytes(before[..., 0], 85), np.uint8), cv2.IMREAD_COLOR)
+    np.testing.assert_array_equal(gray_bytes[..., 0], gray_bytes[..., 1])  # a gray JPEG holds equal R, G, B
+    np.testing.assert_array_equal(gray_bytes[..., 0], jpeg_round_trip(before[..., 0], 85))
 
 
 # ---------------------------------------------------------------------------------- depth
@@ -273,71 +293,106 @@ def _messages(path) -> dict[str, list]:
     return out
 
 
-@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def _bag_name(storage: str) -> str:
+    return "run.bag" if storage == "ros1" else "run"
+
+
+STORAGES = ["sqlite3", "mcap", "ros1"]
+
+
+@pytest.mark.parametrize("storage", STORAGES)
 def test_bag_has_every_topic_stamp_and_the_truth(tmp_path, room, rig, storage):
     spec, oracle = room
     body, stamps = _arc(spec, 5)
-    faults = RobotLogFaults()  # clock offset 0.03 s, ticks 0.1 s apart: tick 0's camera frames are before the run
-    truth = write_robot_log(tmp_path / "run", spec, rig, body, stamps, faults, seed=3, storage=storage, oracle=oracle)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.truth.json"]
-    assert json.loads(truth_path(tmp_path / "run").read_text()) == truth
-    msgs = _messages(tmp_path / "run")
+    faults = RobotLogFaults()  # camera clock 30 ms ahead, JPEG at quality 85
+    name = _bag_name(storage)
+    truth = write_robot_log(tmp_path / name, spec, rig, body, stamps, faults, seed=3, storage=storage, oracle=oracle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name, name + ".truth.json"]
+    assert json.loads(truth_path(tmp_path / name).read_text()) == truth
+    msgs = _messages(tmp_path / name)
     cameras = [s.name for s in rig.cameras]
     expected = {"/tf": 5, "/tf_static": 1, "/odom": 5, "/lidar/points": 5}
-    for c in cameras:
-        expected |= {f"/{c}/image": 4, f"/{c}/depth": 4, f"/{c}/camera_info": 4}
+    for c in cameras:  # every tick has its frames; CameraInfo with the colour and with the depth
+        expected |= {f"/{c}/image/compressed": 5, f"/{c}/depth": 5, f"/{c}/camera_info": 10}
     assert {k: len(v) for k, v in msgs.items()} == expected
-    stamps_ns = [round(t * 1e9) for t in stamps]
-    assert [t for t, _ in msgs["/odom"]] == stamps_ns
-    for c in cameras:
-        assert [t for t, _ in msgs[f"/{c}/image"]] == stamps_ns[1:]
-        m = msgs[f"/{c}/image"][0][1]
-        assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == stamps_ns[1]
-        assert read_image(m).shape == (24, 32, 3)
-    np.testing.assert_allclose(truth["camera_frames"]["capture_times_s"], stamps[1:] - 0.03, atol=1e-12)
-    np.testing.assert_allclose(truth["camera_frames"]["body_to_world"],
-                               interpolate_poses(stamps, body, stamps[1:] - 0.03), atol=1e-12)
+    for topic, ms in msgs.items():  # bag time = header stamp
+        header = [m.transforms[0].header if topic.startswith("/tf") else m.header for _, m in ms]
+        assert [t for t, _ in ms] == [stamp_ns(h) for h in header], topic
+    odometry_ns = [round(t * 1e9) for t in stamps]
+    assert truth["stamps_ns"] == odometry_ns and truth["stamps_s"] == stamps.tolist()
+    assert truth["camera_frames"]["stamps_ns"] == [t + 30_000_000 for t in odometry_ns]
+    assert truth["camera_frames"]["capture_times_s"] == stamps.tolist()
     assert truth["clock_offset_s"] == 0.03 and truth["faults"]["odom_scale_error_percent"] == 1.0
-    # the odometry: the truth in the odom frame at tick 0, then drifting
+    np.testing.assert_allclose(truth["body_to_world"], body, atol=0)
     T = np.asarray(truth["odom_to_world"])
     np.testing.assert_allclose(T, odom_to_world(faults), atol=1e-15)
-    odom0 = matrix_from_transform(msgs["/odom"][0][1].pose.pose)
-    np.testing.assert_allclose(T @ odom0, body[0], atol=1e-6)
-    tf0 = matrix_from_transform(msgs["/tf"][0][1].transforms[0].transform)
-    np.testing.assert_allclose(tf0, odom0, atol=1e-9)
-    np.testing.assert_allclose(truth["body_to_world"], body, atol=0)
-    # depth holes and the 0.3 m minimum are in the depth images
-    depth = np.stack([read_image(m) for _, m in msgs["/frontleft/depth"]])
+
+    with RobotLog(tmp_path / name) as log:
+        assert sorted(log.cameras) == sorted(log.depth) == sorted(cameras) and list(log.lidars) == ["lidar"]
+        assert log.odometry.stamps_ns.tolist() == odometry_ns
+        assert log.lidars["lidar"].stamps_ns.tolist() == odometry_ns
+        for c in cameras:
+            stream = log.cameras[c]
+            assert stream.msgtype == "sensor_msgs/msg/CompressedImage" and stream.encoding == "rgb8; jpeg compressed bgr8"
+            assert (stream.stamps_ns - log.odometry.stamps_ns).tolist() == [30_000_000] * 5  # exactly the offset
+            assert log.depth[c].stamps_ns.tolist() == odometry_ns
+            assert log.image(stream, 0).shape == (24, 32, 3)
+        # the odometry: the truth in the odom frame at tick 0, then drifting; /tf carries the same
+        trajectory = log.body_trajectory()
+        assert trajectory.source == "tf: odom -> body" and trajectory.stamps_ns.tolist() == odometry_ns
+        np.testing.assert_allclose(trajectory.body_to_odom, log.odometry.child_to_parent, atol=1e-12)
+        np.testing.assert_allclose(T @ trajectory.body_to_odom[0], body[0], atol=1e-9)
+        assert np.abs(T @ trajectory.body_to_odom[-1] - body[-1]).max() > 1e-5
+        # the JPEG frames: encode_jpeg's very bytes of the camera at the true pose of its tick
+        front = rig["frontleft"]
+        k = [s.name for s in rig.sensors].index("frontleft")
+        for i in range(5):
+            view = oracle.render_gt(front.camera, front.world_pose(body[i]))
+            gain = truth["camera_frames"]["exposure_gains"]["frontleft"][i]
+            image = camera_faults(view.rgb, gain, front, faults, np.random.default_rng([3, CAMERA_TAG, i, k]), jpeg=False)
+            assert bytes(msgs["/frontleft/image/compressed"][i][1].data) == jpeg_bytes(image, 85)
+            np.testing.assert_array_equal(log.image(log.cameras["frontleft"], i), jpeg_round_trip(image, 85))
+        # depth holes and the 0.3 m minimum are in the depth images
+        depth = np.stack([d for _, d in log.images(log.depth["frontleft"])])
     assert np.isnan(depth).mean() >= 0.03 and np.nanmin(depth) >= 0.3 - 4 * 0.005
 
 
-def test_clean_log_holds_the_oracle_readings_and_the_clock_offset(tmp_path, room, rig):
+@pytest.mark.parametrize(("storage", "offset_s"), [("sqlite3", 0.05), ("mcap", -0.15), ("ros1", 0.0)])
+def test_clean_log_holds_the_oracle_readings_and_the_clock_offset(tmp_path, room, rig, storage, offset_s):
+    """No fault but the clock offset: every reading is the oracle's at the true pose of its tick.
+    -0.15 s puts camera frames more than a tick (0.1 s) before their odometry."""
     spec, oracle = room
     body, stamps = _arc(spec, 4)
-    faults = _faults(clock_offset_s=0.05)
-    write_robot_log(tmp_path / "run", spec, rig, body, stamps, faults, seed=0, oracle=oracle)
-    msgs = _messages(tmp_path / "run")
-    for t_ns, m in msgs["/odom"]:
-        i = round((t_ns * 1e-9 - stamps[0]) / 0.1)
-        np.testing.assert_allclose(matrix_from_transform(m.pose.pose), body[i], atol=1e-6)
-    front = rig["frontleft"]
-    for t_ns, m in msgs["/frontleft/image"]:
-        i = round((t_ns * 1e-9 - stamps[0]) / 0.1)
-        captured = interpolate_poses(stamps, body, [stamps[i] - 0.05])[0]
-        view = oracle.render_gt(front.camera, front.world_pose(captured))
-        np.testing.assert_array_equal(read_image(m), to_uint8(view.rgb))
-        at_stamp = oracle.render_gt(front.camera, front.world_pose(body[i])).rgb
-        assert not np.array_equal(read_image(m), to_uint8(at_stamp))  # 5 cm of walking apart
-        _, d = next(x for x in msgs["/frontleft/depth"] if x[0] == t_ns)
-        r = view.depth_range
-        clean = np.where(np.isnan(r), np.nan, front.measure_depth(np.nan_to_num(r, nan=np.inf)))
-        np.testing.assert_array_equal(read_image(d), clean.astype(np.float32))
-    lidar = rig["lidar"]
-    for (_, m), pose in zip(msgs["/lidar/points"], body, strict=True):
-        exact = oracle.cast_rays(*lidar.rays(pose)).t.reshape(lidar.ray_shape)
-        scan = lidar.scan(lidar.measure(exact))
-        points = read_pointcloud(m)
-        np.testing.assert_allclose(np.stack([points["x"], points["y"], points["z"]], -1), scan.xyz_m[scan.hit], atol=1e-6)
+    faults = _faults(clock_offset_s=offset_s)
+    name = _bag_name(storage)
+    truth = write_robot_log(tmp_path / name, spec, rig, body, stamps, faults, seed=0, storage=storage, oracle=oracle)
+    assert truth["camera_frames"]["topic"] == "/<camera>/image"
+    with RobotLog(tmp_path / name) as log:
+        odometry_ns = log.odometry.stamps_ns
+        assert odometry_ns.tolist() == [round(t * 1e9) for t in stamps]
+        trajectory = log.body_trajectory()
+        np.testing.assert_allclose(trajectory.body_to_odom, body, atol=1e-12)  # no drift, odom = world
+        np.testing.assert_allclose(log.odometry.child_to_parent, body, atol=1e-12)
+        for s in rig.cameras:
+            stream = log.cameras[s.name]
+            assert stream.msgtype == "sensor_msgs/msg/Image" and stream.encoding == "rgb8"
+            assert (stream.stamps_ns - odometry_ns).tolist() == [round(offset_s * 1e9)] * 4
+            assert log.depth[s.name].stamps_ns.tolist() == odometry_ns.tolist()
+            assert stream.camera == s.camera
+            np.testing.assert_allclose(log.sensor_to_body(stream.frame_id), s.sensor_to_body, atol=1e-12)
+            for i, image in log.images(stream):
+                view = oracle.render_gt(s.camera, s.world_pose(body[i]))
+                np.testing.assert_array_equal(image, to_uint8(view.rgb))
+                r = view.depth_range
+                clean = np.where(np.isnan(r), np.nan, s.measure_depth(np.nan_to_num(r, nan=np.inf)))
+                np.testing.assert_array_equal(log.image(log.depth[s.name], i), clean.astype(np.float32))
+        lidar = rig["lidar"]
+        assert log.lidars["lidar"].stamps_ns.tolist() == odometry_ns.tolist()
+        for i, points in log.clouds(log.lidars["lidar"]):
+            exact = oracle.cast_rays(*lidar.rays(body[i])).t.reshape(lidar.ray_shape)
+            scan = lidar.scan(lidar.measure(exact))
+            np.testing.assert_allclose(points.xyz_m, scan.xyz_m[scan.hit], atol=1e-6)
+            np.testing.assert_array_equal(points.intensity, 1.0)
 
 
 def test_seeded_runs_write_identical_truth(tmp_path, room, rig):
@@ -348,7 +403,7 @@ def test_seeded_runs_write_identical_truth(tmp_path, room, rig):
         write_robot_log(tmp_path / str(k) / "run", spec, rig, body, stamps, RobotLogFaults(), seed=11, oracle=oracle)
     a, b = ((tmp_path / str(k) / "run.truth.json").read_bytes() for k in range(2))
     assert a == b
-    img = [_messages(tmp_path / str(k) / "run")["/back/image"][-1][1].data for k in range(2)]
+    img = [_messages(tmp_path / str(k) / "run")["/back/image/compressed"][-1][1].data for k in range(2)]
     np.testing.assert_array_equal(img[0], img[1])
 
 
@@ -371,20 +426,7 @@ def test_bad_destination_fails_before_rendering(tmp_path, room, rig, monkeypatch
         write_robot_log(tmp_path / "missing" / "run", spec, rig, body, stamps)
     with pytest.raises(ConfigError, match="depth_hole_fraction"):
         write_robot_log(tmp_path / "new", spec, rig, body, stamps, _faults(depth_hole_fraction=2.0))
+    line, from_zero = _line(3)
+    with pytest.raises(ValueError, match="before time 0"):  # the camera clock 50 ms behind a run that starts at 0
+        write_robot_log(tmp_path / "new", spec, rig, line, from_zero, _faults(clock_offset_s=-0.05))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["other.truth.json", "run"]
-
-
-def test_ros1_bag_when_the_writer_has_it(tmp_path, room, rig):
-    spec, oracle = room
-    body, stamps = _arc(spec, 3)
-    try:
-        write_robot_log(tmp_path / "run.bag", spec, rig, body, stamps, RobotLogFaults(), storage="ros1", oracle=oracle)
-    except ValueError as exc:
-        if "storage" in str(exc):
-            pytest.skip(f"BagWriter has no ROS 1 output yet ({exc})")
-        raise
-    msgs = _messages(tmp_path / "run.bag")
-    assert len(msgs["/odom"]) == 3 and len(msgs["/frontleft/image"]) == 2
-    assert truth_path(tmp_path / "run.bag").is_file()
-    T = np.asarray(json.loads(truth_path(tmp_path / "run.bag").read_text())["odom_to_world"])
-    np.testing.assert_allclose(T @ matrix_from_transform(msgs["/odom"][0][1].pose.pose), body[0], atol=1e-6)
