@@ -259,16 +259,17 @@ def capture_metadata(cfg: PhoneConfig) -> dict[str, Any]:
 
 
 def encode_jpeg(rgb_u8: np.ndarray, quality: int) -> bytes:
-    """JPEG bytes of an ``(H, W, 3)`` uint8 RGB image at ``quality`` (libjpeg scale, 4:2:0 chroma)."""
+    """JPEG bytes of an ``(H, W, 3)`` uint8 RGB image (4:2:0 chroma) or an ``(H, W)`` uint8 grey one (one
+    component, as a grey camera's driver writes it) at ``quality`` (libjpeg scale)."""
     import cv2
 
     rgb_u8 = np.asarray(rgb_u8)
-    if rgb_u8.dtype != np.uint8 or rgb_u8.ndim != 3 or rgb_u8.shape[2] != 3:
-        raise ValueError(f"encode_jpeg: expected (H, W, 3) uint8, got {rgb_u8.dtype} {rgb_u8.shape}")
+    if rgb_u8.dtype != np.uint8 or not (rgb_u8.ndim == 2 or (rgb_u8.ndim == 3 and rgb_u8.shape[2] == 3)):
+        raise ValueError(f"encode_jpeg: expected (H, W, 3) or (H, W) uint8, got {rgb_u8.dtype} {rgb_u8.shape}")
     params = [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
-    if hasattr(cv2, "IMWRITE_JPEG_SAMPLING_FACTOR"):
+    if rgb_u8.ndim == 3 and hasattr(cv2, "IMWRITE_JPEG_SAMPLING_FACTOR"):
         params += [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420]
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb_u8[..., ::-1]), params)
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb_u8[..., ::-1] if rgb_u8.ndim == 3 else rgb_u8), params)
     if not ok:
         raise RuntimeError("OpenCV could not encode a JPEG")
     return buf.tobytes()

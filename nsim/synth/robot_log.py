@@ -27,8 +27,8 @@ cameras (per camera, ``camera_faults``)
     drift per camera), shot and read noise, the white level (``nsim.synth.phone.develop``); then
     the rig's own exposure and colour (``CameraSensor.expose``), 8 bits, then JPEG at
     ``jpeg_quality`` (``nsim.synth.phone.encode_jpeg``, 4:2:0): the bag holds those very bytes as
-    sensor_msgs/CompressedImage on ``/<camera>/image/compressed`` (a gray camera's JPEG holds equal
-    R, G and B: encode_jpeg writes colour only). ``jpeg_quality`` None: raw sensor_msgs/Image on
+    sensor_msgs/CompressedImage on ``/<camera>/image/compressed`` (a gray camera's is a one-component
+    JPEG, as gray drivers write it). ``jpeg_quality`` None: raw sensor_msgs/Image on
     ``/<camera>/image``.
 depth (per depth-emitting camera, ``depth_faults``)
     the rig's depth model (``nsim.sensors.depth.apply_depth_model``: kind, maximum range,
@@ -222,22 +222,20 @@ def exposure_gains(times_s: np.ndarray, faults: RobotLogFaults, rng: np.random.G
 
 def jpeg_bytes(image_u8: np.ndarray, quality: int) -> bytes:
     """The JPEG (``nsim.synth.phone.encode_jpeg`` at ``quality``) of ``image_u8``: (H, W, 3) RGB or
-    (H, W) gray uint8; a gray image is encoded as equal R, G, B (a 3-component JPEG)."""
-    image = np.asarray(image_u8)
-    return encode_jpeg(np.repeat(image[..., None], 3, axis=-1) if image.ndim == 2 else image, quality)
+    (H, W) gray uint8 (a one-component JPEG)."""
+    return encode_jpeg(np.asarray(image_u8), quality)
 
 
 def jpeg_round_trip(image_u8: np.ndarray, quality: int) -> np.ndarray:
     """``image_u8`` ((H, W, 3) RGB or (H, W) gray, uint8) after ``jpeg_bytes`` at ``quality`` and
-    decoding: the same shape and dtype (gray: the mean of the decoded R, G, B, which are equal)."""
+    decoding: the same shape and dtype."""
     import cv2
 
     image = np.asarray(image_u8)
-    data = jpeg_bytes(image, quality)
-    out = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+    data = np.frombuffer(jpeg_bytes(image, quality), dtype=np.uint8)
     if image.ndim == 2:
-        return np.rint(out.mean(axis=-1)).astype(np.uint8)
-    return np.ascontiguousarray(out)
+        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    return np.ascontiguousarray(cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1])
 
 
 def camera_faults(rgb: np.ndarray, exposure_gain: float, sensor: CameraSensor, faults: RobotLogFaults,

@@ -430,3 +430,15 @@ def test_bad_destination_fails_before_rendering(tmp_path, room, rig, monkeypatch
     with pytest.raises(ValueError, match="before time 0"):  # the camera clock 50 ms behind a run that starts at 0
         write_robot_log(tmp_path / "new", spec, rig, line, from_zero, _faults(clock_offset_s=-0.05))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["other.truth.json", "run"]
+
+
+def test_a_gray_camera_writes_a_one_component_jpeg():
+    from nsim.io.rosbag import jpeg_components
+    from nsim.synth.robot_log import jpeg_bytes, jpeg_round_trip
+
+    gray = (np.arange(48 * 64) % 251).astype(np.uint8).reshape(48, 64)
+    assert jpeg_components(jpeg_bytes(gray, 90)) == 1
+    back = jpeg_round_trip(gray, 90)
+    assert back.shape == gray.shape and back.dtype == np.uint8
+    assert np.abs(back.astype(int) - gray).mean() < 8
+    assert jpeg_components(jpeg_bytes(np.stack([gray] * 3, -1), 90)) == 3
