@@ -24,6 +24,7 @@ from nsim.stages import (  # noqa: E402
     capture,
     evaluate,
     export,
+    import_log,
     reconstruct,
     render,
     simulate,
@@ -90,6 +91,20 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     ctx.store.set_ref("trajectory/demo-spot-run", out.trajectory)
 
     traj_id = out.trajectory
+
+    # A robot's recording: Spot's sensors along the run as the test room's oracle sees them, with a
+    # real robot's faults (noise, auto-exposure, JPEG, depth holes, LiDAR dropout, odometry drift, a
+    # camera clock offset, an odometry frame offset), written as a ROS 2 bag and imported back.
+    bag = Path(ctx.store.root) / "robot_logs" / f"spot_run-{traj_id[:12]}"
+    if not bag.exists():
+        bag.parent.mkdir(exist_ok=True)
+        rl_cfg = load_config(capture.RobotLogConfig, stage="robot_log", preset="tiny")
+        step("capture robot-log", lambda: capture.robot_log(traj_id, repo / "configs" / "robots" / "spot.yaml",
+                                                              bag, rl_cfg, ctx))
+    il_cfg = load_config(import_log.Config, stage="import_log", preset="default")
+    rec = step("import-log (ROS 2 bag)", lambda: import_log.run(import_log.Inputs(log=(bag,)), il_cfg, ctx))
+    ctx.store.set_ref("recording/demo-spot-run", rec.recording)
+    print(f"[demo]   {ctx.store.get(rec.recording).path / 'preview.png'}", flush=True)
 
     # The people: an actor walking the room, filmed by a handheld camera, and the human NeRF
     # trained on it (a small capture: the demo shows the path; `make paper` has the larger one).

@@ -46,6 +46,7 @@ from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
 from nsim.progress import progress_bar
 from nsim.synth.phone import PhoneConfig
+from nsim.synth.robot_log import RobotLogFaults
 from nsim.synth.room import ROOM_PRESETS
 
 STAGE = "capture"
@@ -317,3 +318,57 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     cfg = from_dict(Config, manifest["config"])
     ctx.force = True
     return run(Inputs(), cfg, ctx).capture
+
+
+# ---------------------------------------------------------------------------------- a robot's log
+@dataclasses.dataclass(frozen=True)
+class RobotLogConfig:
+    """``nsim capture robot-log``: the rig's sensors along a simulated run, with real-world faults."""
+
+    faults: RobotLogFaults = RobotLogFaults()
+    storage: str = param("sqlite3", choices=("sqlite3", "mcap", "ros1"), help="ROS 2 sqlite3 / mcap, or a ROS 1 .bag")
+    sensors: tuple[str, ...] = param((), help="the rig's sensors to record (empty: all)")
+    image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow)")
+    lidar_azimuth_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every LiDAR's azimuth samples")
+    tick_stride: int = param(1, ge=1, help="record every k-th tick of the run")
+    max_ticks: int = param(0, ge=0, help="then at most this many ticks (0: all)")
+    supersample: int = param(1, ge=1, le=4, help="oracle supersampling per pixel side")
+    start_time_s: float = param(1.7e9, ge=1.0, help="the log's clock at the run's first tick (seconds since the "
+                                                    "epoch, as a robot's clock reads; ROS treats stamp 0 as unset)")
+
+
+def robot_log(trajectory: str, rig_path: Path, out: Path, cfg: RobotLogConfig, ctx: RunContext) -> dict[str, Any]:
+    """Write the realistic robot log of a simulated run (``nsim.synth.robot_log.write_robot_log``).
+
+    trajectory: a trajectory artifact (``nsim simulate``) whose scenario's scene is a test room
+    (``scene: {room, room_seed}``); the robot's true path is its ``robot.tum``. The bag (and its
+    ``<bag>.truth.json``) goes to ``out``, outside the workspace, which must not exist yet. Returns the
+    truth. Checked before any rendering: the trajectory, the room, the rig, the destination.
+    """
+    from nsim.errors import InputError
+    from nsim.io.rosbag import check_bag_destination
+    from nsim.io.tum import read_tum
+    from nsim.sensors.rig import Rig
+    from nsim.stages.render import adapt_rig
+    from nsim.synth.robot_log import write_robot_log
+    from nsim.synth.room import make_room
+
+    store = ctx.store
+    art = store.get(store.resolve(trajectory, kind="trajectory"))
+    scene = json.loads(art.file("scenario.json").read_text()).get("scene", {})
+    if "room" not in scene:
+        raise InputError(f"trajectory {art.id[:12]}: its scenario's scene is not a test room ({sorted(scene)}); a "
+                         "robot log needs the room's oracle")
+    if cfg.storage == "ros1" and out.suffix != ".bag":
+        raise InputError(f"--out {out}: a ROS 1 bag is one file named *.bag")
+    check_bag_destination(out, "--out")
+    rig = adapt_rig(Rig.load(rig_path), cfg)
+    robot = read_tum(art.file("robot.tum"))
+    idx = np.arange(0, len(robot), cfg.tick_stride)
+    if cfg.max_ticks:
+        idx = idx[: cfg.max_ticks]
+    body = robot.poses_se3()[idx]
+    stamps = robot.timestamps_s[idx] - robot.timestamps_s[0] + cfg.start_time_s
+    spec = make_room(scene["room"], int(scene.get("room_seed", 0)))
+    return write_robot_log(out, spec, rig, body, stamps, cfg.faults.validated(), seed=ctx.seed, storage=cfg.storage,
+                           supersample=cfg.supersample)

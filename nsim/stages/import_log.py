@@ -252,7 +252,7 @@ def write_preview(path: Path, out_dir: Path, doc: dict[str, Any], traj) -> None:
     t = (traj.stamps_ns - traj.stamps_ns[0]) / 1e9
     sc = ax.scatter(xy[:, 0], xy[:, 1], c=t, s=4, cmap="viridis")
     ax.plot(xy[0, 0], xy[0, 1], "k^", label="start")
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(f"x in {doc['odom_frame']} (m)")
     ax.set_ylabel(f"y in {doc['odom_frame']} (m)")
     ax.set_title(f"body trajectory ({doc['trajectory']['source']})\n{doc['trajectory']['length_m']:.1f} m, "

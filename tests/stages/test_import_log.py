@@ -144,3 +144,30 @@ def test_bad_input_exits_2_with_one_line_and_publishes_nothing(imported, tmp_pat
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and words in err, (args, err)
     assert set(Store(ws).all_ids()) == before
+
+
+def test_capture_robot_log_then_import(tmp_path, capsys):
+    """``nsim capture robot-log`` of a simulated run (tiny preset) writes a bag and its truth; import-log reads it;
+    bad destinations exit 2 before any rendering."""
+    ws = str(tmp_path / "ws")
+    assert main(["--workspace", ws, "simulate", "--scenario", "configs/scenarios/spot_run.json",
+                 "--tag", "trajectory/run"]) == 0
+    out = tmp_path / "run"
+    assert main(["--workspace", ws, "capture", "robot-log", "trajectory/run", "--preset", "tiny", "--out", str(out)]) == 0
+    truth = json.loads((tmp_path / "run.truth.json").read_text())
+    assert len(truth["stamps_ns"]) == 8 and truth["stamps_ns"][0] == 1_700_000_000 * 10**9
+    assert main(["--workspace", ws, "import-log", str(out), "--tag", "recording/run"]) == 0
+    store = Store(ws)
+    doc = json.loads(store.get(store.resolve("recording/run")).file("recording.json").read_text())
+    assert doc["trajectory"]["poses"] == 8 and {v["kind"] for v in doc["streams"].values()} == {"camera", "depth", "lidar"}
+    for args, words in (
+        (["--out", str(out)], "exists already"),
+        (["--out", str(tmp_path / "x" / "run")], "does not exist"),
+        (["--out", str(tmp_path / "run2"), "--set", "storage=ros1"], "*.bag"),
+        (["--out", str(tmp_path / "run3"), "--set", "faults.jpeg_quality=0"], "faults.jpeg_quality"),
+    ):
+        capsys.readouterr()
+        assert main(["--workspace", ws, "capture", "robot-log", "trajectory/run", "--preset", "tiny", *args]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err, (args, err)
+    assert not (tmp_path / "run2").exists() and not (tmp_path / "run3").exists()
