@@ -26,7 +26,7 @@ Humble's where a ROS 2 bag has none. Nothing is executed or unpickled.
     odometry: /odom               # nav_msgs/Odometry
     tf: /tf                       # default /tf and /tf_static when present
     tf_static: /tf_static
-    body_frame: body              # default: the odometry's child frame, else base_link / body / base_footprint
+    body_frame: body              # default: the odometry's child frame (if named), else base_link / body / base_footprint
     odom_frame: odom              # default: the odometry's frame, else odom
 
 A group left out (or ``null``) gets the defaults by message type: **cameras** and **depth** are the
@@ -51,8 +51,11 @@ repeated stamp of the same link is dropped (the first one is kept, as tf2 does).
 **Frames.** Frame ids lose a leading ``/`` (ROS 1's tf allowed one; tf2 does not). A transform
 ``parent -> child`` on /tf or /tf_static is the child's pose in the parent, ``child_to_parent
 (4, 4)``. :meth:`TfTree.sensor_to_body` chains /tf_static links only; :meth:`RobotLog.body_trajectory`
-takes odom -> body from /tf (a path with exactly one moving link, static links at either end) or
-else from the Odometry topic.
+takes odom -> body from /tf or else from the Odometry topic. A path across several moving links
+(``map -> odom -> base_link`` read with ``odom_frame: map``) is sampled at the stamps of its densest
+link, the others interpolated (linear position, slerped rotation) and never extrapolated: stamps
+outside their span are dropped, as tf2 refuses them. An Odometry whose ``child_frame_id`` is empty
+(ROS 1 Stage's ground truth) is taken to give the body's pose (a warning says so).
 
 **Errors.** Bad input raises :class:`~nsim.errors.InputError` with one line that names the bag,
 the topic and, where one message is at fault, its index in the topic (0-based, bag order): a topic
@@ -332,7 +335,8 @@ class MovingLink:
 class Trajectory:
     """The body's motion: stamps_ns (N,) int64, body_to_odom (N, 4, 4) (the body's pose in odom).
 
-    source: where it came from (``tf: odom -> body`` or ``odometry /odom``)."""
+    source: where it came from (``tf: odom -> body`` or ``odometry /odom``); body_frame is empty when
+    an Odometry without child_frame_id gave the poses and no body frame is known."""
 
     stamps_ns: np.ndarray
     body_to_odom: np.ndarray
@@ -402,28 +406,78 @@ class TfTree:
         """
         return self.static_transform(frame_id, body_frame)
 
+    def transforms_at(self, source: str, target: str, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``source_to_target`` at each of ``stamps_ns (N,)`` through /tf_static and /tf links.
+
+        Returns ``kept (N,)`` bool and ``source_to_target (K, 4, 4)`` at ``stamps_ns[kept]``. A
+        moving link is taken as sent at its own stamps and interpolated between them (linear
+        position, slerped rotation); a stamp outside a moving link's first..last stamp is not kept
+        (tf2 does not extrapolate either). InputError when no path joins the frames.
+        """
+        source, target = source.lstrip("/"), target.lstrip("/")
+        path = self._path(source, target, with_moving=True)
+        if path is None:
+            raise InputError(f"tf: no link between {source!r} and {target!r} in /tf or /tf_static")
+        return _compose(path, np.asarray(stamps_ns, dtype=np.int64))
+
     def trajectory(self, odom_frame: str, body_frame: str) -> tuple[np.ndarray, np.ndarray]:
-        """``stamps_ns (N,)`` and ``body_to_odom (N, 4, 4)`` from /tf, at the stamps of the one
-        moving link on the path from body to odom (static links at either end are composed in).
-        InputError when there is no path, or when it has no or several moving links."""
+        """``stamps_ns (N,)`` and ``body_to_odom (N, 4, 4)`` from /tf along the path from body to odom.
+
+        The stamps are those of the path's moving link with the most stamps (of equal ones, the
+        nearest the body: ``odom -> base_link`` on a ``map -> odom -> base_link`` tree read in
+        ``map``); the other moving links are interpolated at them and stamps outside their span
+        are dropped (see :meth:`transforms_at`); static links are composed in. InputError when
+        there is no path, when it has no moving link, or when no stamp lies in every moving
+        link's span.
+        """
         odom_frame, body_frame = odom_frame.lstrip("/"), body_frame.lstrip("/")
         path = self._path(body_frame, odom_frame, with_moving=True)
         if path is None:
             raise InputError(f"tf: no link between {body_frame!r} and {odom_frame!r} in /tf or /tf_static")
-        moving = [k for k, (link, _) in enumerate(path) if isinstance(link, MovingLink)]
-        if len(moving) != 1:
-            names = ", ".join(f"{path[k][0].parent} -> {path[k][0].child}" for k in moving)
-            raise InputError(f"tf: the path from {odom_frame!r} to {body_frame!r} has {len(moving)} moving links"
-                             f"{' (' + names + ')' if names else ''}; nsim reads a trajectory across exactly one")
-        k = moving[0]
-        before, after = np.eye(4), np.eye(4)
-        for link, upward in path[:k]:
-            before = (link.child_to_parent if upward else invert_se3(link.child_to_parent)) @ before
-        for link, upward in path[k + 1:]:
-            after = (link.child_to_parent if upward else invert_se3(link.child_to_parent)) @ after
-        link, upward = path[k]
-        step = link.child_to_parent if upward else invert_se3(link.child_to_parent)
-        return link.stamps_ns.copy(), after @ step @ before
+        moving = [link for link, _ in path if isinstance(link, MovingLink)]
+        if not moving:
+            raise InputError(f"tf: the path from {odom_frame!r} to {body_frame!r} has no moving link (the body does "
+                             "not move in that frame)")
+        clock = max(moving, key=lambda link: len(link.stamps_ns))  # the first of equals: nearest the body
+        kept, body_to_odom = _compose(path, clock.stamps_ns)
+        if not kept.any():
+            spans = ", ".join(f"{link.parent} -> {link.child} {link.stamps_ns[0]}..{link.stamps_ns[-1]} ns"
+                              for link in moving)
+            raise InputError(f"tf: the moving links from {odom_frame!r} to {body_frame!r} share no time ({spans})")
+        if not kept.all():
+            log.info("tf %s -> %s: %d of %d stamps of %s -> %s lie outside another moving link's span; dropped",
+                     odom_frame, body_frame, int((~kept).sum()), len(kept), clock.parent, clock.child)
+        return clock.stamps_ns[kept], body_to_odom
+
+
+def _link_at(link: MovingLink, stamps_ns: np.ndarray) -> np.ndarray:
+    """``child_to_parent (N, 4, 4)`` of a moving link at stamps inside its span: its own matrices at
+    its own stamps, interpolated between them (:func:`nsim.crowd.scenario.interpolate_poses`)."""
+    from nsim.crowd.scenario import interpolate_poses
+
+    at = np.clip(np.searchsorted(link.stamps_ns, stamps_ns), 0, len(link.stamps_ns) - 1)
+    exact = link.stamps_ns[at] == stamps_ns
+    out = link.child_to_parent[at]
+    if not exact.all():
+        t0 = link.stamps_ns[0]  # seconds from the first stamp keep float64's resolution
+        out[~exact] = interpolate_poses((link.stamps_ns - t0) / 1e9, link.child_to_parent,
+                                        (stamps_ns[~exact] - t0) / 1e9)
+    return out
+
+
+def _compose(path: list[tuple[StaticLink | MovingLink, bool]], stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``kept (N,)`` and the path's ``source_to_target (K, 4, 4)`` at ``stamps_ns[kept]`` (see
+    :meth:`TfTree.transforms_at`)."""
+    kept = np.ones(len(stamps_ns), dtype=bool)
+    for link, _ in path:
+        if isinstance(link, MovingLink):
+            kept &= (stamps_ns >= link.stamps_ns[0]) & (stamps_ns <= link.stamps_ns[-1])
+    at = stamps_ns[kept]
+    out = np.broadcast_to(np.eye(4), (len(at), 4, 4)).copy()
+    for link, upward in path:
+        step = _link_at(link, at) if isinstance(link, MovingLink) else link.child_to_parent
+        out = (step if upward else invert_se3(step)) @ out
+    return kept, out
 
 
 # ---------------------------------------------------------------------------- association
@@ -814,6 +868,9 @@ class RobotLog:
             (f for f in BODY_FRAMES if f in frames), None)
         self.odom_frame = sel.odom_frame or (self.odometry.frame_id if self.odometry and self.odometry.frame_id
                                              else None) or ("odom" if "odom" in frames else None)
+        if self.odometry is not None and len(self.odometry.stamps_ns) and not self.odometry.child_frame_id:
+            log.warning("%s: child_frame_id is empty; its poses are taken as the body's (body frame: %s)",
+                        self._where(self.odometry.topic), self.body_frame or "unnamed")
 
     def _check_image(self, g: _Topic, msg, where: str) -> None:
         """Encoding known and constant, size constant (the pixels are checked when decoded)."""
@@ -924,8 +981,10 @@ class RobotLog:
     def _body(self, body_frame: str | None) -> str:
         body = (body_frame or self.body_frame or "").lstrip("/")
         if not body:
-            raise InputError(f"bag {self.name}: the body frame is unknown (no Odometry, no {'/'.join(BODY_FRAMES)} "
-                             "frame in tf): give body_frame in the selection")
+            o = self.odometry
+            why = f"the Odometry {o.topic} has no child_frame_id" if o is not None else "no Odometry"
+            raise InputError(f"bag {self.name}: the body frame is unknown ({why}, no {'/'.join(BODY_FRAMES)} frame in "
+                             "tf): give body_frame in the selection")
         return body
 
     def sensor_to_body(self, frame_id: str, body_frame: str | None = None) -> np.ndarray:
@@ -935,34 +994,71 @@ class RobotLog:
     def body_trajectory(self, source: str = "auto") -> Trajectory:
         """The body's poses in the odom frame over time.
 
-        source: ``tf`` (the one moving link between odom and body on /tf, static links composed
-        in), ``odometry`` (the Odometry topic; its frames joined to odom_frame / body_frame through
-        /tf_static where they differ), or ``auto``: tf where it has a path, else odometry.
+        source: ``tf`` (the path from body to odom on /tf and /tf_static: :meth:`TfTree.trajectory`),
+        ``odometry`` (the Odometry topic at its stamps; where its frames differ from odom_frame /
+        body_frame they are joined through tf, moving links interpolated and stamps outside their
+        span dropped: :meth:`TfTree.transforms_at`; an Odometry without child_frame_id is taken to
+        give the body's pose), or ``auto``: tf where it has a path, else odometry (InputError with
+        both reasons when neither works).
         """
         if source not in ("auto", "tf", "odometry"):
             raise ValueError(f"source: expected auto, tf or odometry, got {source!r}")
-        body = self._body(None)
-        odom = self.odom_frame or (self.odometry.frame_id if self.odometry else None)
-        if not odom:
-            raise InputError(f"bag {self.name}: the odom frame is unknown: give odom_frame in the selection")
         tf_error = None
         if source in ("auto", "tf"):
             try:
-                stamps, body_to_odom = self.tf.trajectory(odom, body)
-                return Trajectory(stamps, body_to_odom, odom, body, f"tf: {odom} -> {body}")
+                return self._tf_trajectory()
             except InputError as exc:
                 if source == "tf" or self.odometry is None:
                     raise
                 tf_error = exc
-        if self.odometry is None:
-            raise InputError(f"bag {self.name}: no Odometry topic to take the trajectory from")
-        o = self.odometry
-        child_to_body = np.eye(4) if o.child_frame_id == body else invert_se3(self.tf.static_transform(body, o.child_frame_id))
-        frame_to_odom = np.eye(4) if o.frame_id == odom else self.tf.static_transform(o.frame_id, odom)
-        body_to_odom = frame_to_odom @ o.child_to_parent @ invert_se3(child_to_body)
+        try:
+            trajectory = self._odometry_trajectory()
+        except InputError as exc:
+            if tf_error is None:
+                raise
+            raise InputError(f"{exc} (and from tf: {tf_error})") from None
         if tf_error is not None:
-            log.info("bag %s: trajectory from %s (%s)", self.name, o.topic, tf_error)
-        return Trajectory(o.stamps_ns.copy(), body_to_odom, odom, body, f"odometry {o.topic}")
+            log.info("bag %s: trajectory from %s (%s)", self.name, self.odometry.topic, tf_error)
+        return trajectory
+
+    def _tf_trajectory(self) -> Trajectory:
+        body = self._body(None)
+        odom = self.odom_frame
+        if not odom:
+            raise InputError(f"bag {self.name}: the odom frame is unknown: give odom_frame in the selection")
+        stamps, body_to_odom = self.tf.trajectory(odom, body)
+        return Trajectory(stamps, body_to_odom, odom, body, f"tf: {odom} -> {body}")
+
+    def _odometry_trajectory(self) -> Trajectory:
+        o = self.odometry
+        if o is None:
+            raise InputError(f"bag {self.name}: no Odometry topic to take the trajectory from")
+        odom = self.odom_frame or o.frame_id
+        frame = o.frame_id or odom  # no frame_id: the poses are taken to be in odom
+        if o.child_frame_id:
+            body = self._body(None)
+            joins = [(body, o.child_frame_id), (frame, odom)]
+        else:  # the poses of an unnamed frame: the body's (warned when read)
+            body = self.body_frame or ""
+            joins = [(frame, odom)]
+        joins = [(a, b) for a, b in joins if a != b]
+        kept = np.ones(len(o.stamps_ns), dtype=bool)
+        for a, b in joins:
+            kept &= self.tf.transforms_at(a, b, o.stamps_ns)[0]
+        if not kept.any() and len(kept):
+            raise InputError(f"bag {self.name}: no stamp of {o.topic} lies within the tf links that join "
+                             f"{o.frame_id!r} -> {o.child_frame_id!r} to {odom!r} -> {body!r}")
+        stamps = o.stamps_ns[kept]
+
+        def join(a: str, b: str) -> np.ndarray:
+            return self.tf.transforms_at(a, b, stamps)[1] if (a, b) in joins else np.eye(4)
+
+        body_to_child, frame_to_odom = join(body, o.child_frame_id), join(frame, odom)
+        if not kept.all():
+            log.info("bag %s: %d of %d poses of %s lie outside the tf links that join its frames; dropped",
+                     self.name, int((~kept).sum()), len(kept), o.topic)
+        body_to_odom = frame_to_odom @ o.child_to_parent[kept] @ body_to_child
+        return Trajectory(stamps, body_to_odom, odom, body, f"odometry {o.topic}")
 
     # ------------------------------------------------------------------ lifetime
 

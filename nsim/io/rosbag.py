@@ -589,7 +589,8 @@ class LidarPoints:
     """The usual fields of a PointCloud2 as plain arrays, ``N`` points in the message's order.
 
     xyz_m: (N, 3) float64, the cloud's frame; intensity: (N,) float64 or None; ring: (N,) int64
-    or None; time: (N,) float64 or None, the per-point time *as recorded* in field ``time_field``
+    or None (field ``ring`` or ``laser_id``); time: (N,) float64 or None, the per-point time *as
+    recorded* in field ``time_field`` (``time_sec+time_nsec``: the sum of Luminar's two fields)
     (units are the driver's: Velodyne ``time`` is seconds from the sweep's start, Ouster ``t``
     nanoseconds, Hesai ``timestamp`` absolute seconds, Livox ``offset_time`` nanoseconds).
     """
@@ -604,8 +605,10 @@ class LidarPoints:
         return len(self.xyz_m)
 
 
-#: Field names tried, in order, for a point's time.
+#: Field names tried, in order, for a point's time (then ``time_sec`` + ``time_nsec`` together).
 TIME_FIELDS = ("time", "t", "timestamp", "time_stamp", "offset_time")
+#: Field names tried, in order, for a point's beam (Velodyne / Ouster ``ring``, Luminar ``laser_id``).
+RING_FIELDS = ("ring", "laser_id")
 
 
 def lidar_points(msg, *, finite_only: bool = False, where: str = "points") -> LidarPoints:
@@ -631,9 +634,13 @@ def lidar_points(msg, *, finite_only: bool = False, where: str = "points") -> Li
         return points[name][keep].astype(dtype)
 
     time_field = next((n for n in TIME_FIELDS if n in names and not points.dtype[n].shape), None)
+    time = scalar(time_field, np.float64) if time_field else None
+    if time is None and (sec := scalar("time_sec", np.float64)) is not None \
+            and (nsec := scalar("time_nsec", np.float64)) is not None:
+        time, time_field = sec + nsec * 1e-9, "time_sec+time_nsec"  # Luminar: absolute seconds in two fields
+    ring = next((r for n in RING_FIELDS if (r := scalar(n, np.int64)) is not None), None)
     return LidarPoints(xyz_m=np.ascontiguousarray(xyz[keep]), intensity=scalar("intensity", np.float64),
-                       ring=scalar("ring", np.int64), time=scalar(time_field, np.float64) if time_field else None,
-                       time_field=time_field)
+                       ring=ring, time=time, time_field=time_field)
 
 
 class BagWriter:

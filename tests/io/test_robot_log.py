@@ -578,19 +578,115 @@ def test_tf_repeats_and_ordering(tmp_path):
         RobotLog(path)
 
 
-def test_trajectory_needs_one_moving_link():
+def test_trajectory_across_moving_links():
     a, b = make_se3(np.eye(3), np.ones(3)), make_se3(np.eye(3), np.zeros(3))
     from nsim.io.robot_log import MovingLink
 
     stamps = np.array([1, 2])
     tree = TfTree((StaticLink("body", "cam", a),),
                   (MovingLink("map", "odom", stamps, np.stack([a, b])), MovingLink("odom", "body", stamps, np.stack([b, a]))))
-    with pytest.raises(InputError, match=r"path from 'map' to 'body' has 2 moving links \(odom -> body, map -> odom\)"):
-        tree.trajectory("map", "body")
+    stamps_ns, body_to_map = tree.trajectory("map", "body")  # equal rates: the stamps of the link nearest the body
+    np.testing.assert_array_equal(stamps_ns, stamps)
+    np.testing.assert_allclose(body_to_map, np.stack([a @ b, b @ a]), rtol=0, atol=1e-12)
     stamps_ns, body_to_odom = tree.trajectory("odom", "cam")  # "body" is cam here: the static link is composed in
     np.testing.assert_allclose(body_to_odom, np.stack([b @ a, a @ a]))
-    with pytest.raises(InputError, match=r"has 0 moving links"):
+    with pytest.raises(InputError, match=r"path from 'cam' to 'body' has no moving link"):
         tree.trajectory("cam", "body")
+    late = TfTree((), (MovingLink("map", "odom", np.array([5, 6]), np.stack([a, b])),
+                       MovingLink("odom", "body", stamps, np.stack([b, a]))))
+    with pytest.raises(InputError, match=r"moving links from 'map' to 'body' share no time \(odom -> body 1..2 ns, "
+                                         r"map -> odom 5..6 ns\)"):
+        late.trajectory("map", "body")
+
+
+def _yaw_pose(yaw: float, xyz) -> np.ndarray:
+    return make_se3(Rotation.from_euler("z", yaw).as_matrix(), np.asarray(xyz, dtype=np.float64))
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_map_odom_base_link_tree(tmp_path, fmt):
+    """REP 105 as nav2 records it (evo's nav2_turtlebot.mcap): odom -> base_link at the odometry's
+    rate, map -> odom (amcl) at a lower one and stamped ahead of when it is sent (its
+    transform_tolerance), so past the last odometry. Read in map, the trajectory keeps the
+    odometry's stamps that lie in map -> odom's span, with map -> odom interpolated at them."""
+    path = bag_path(tmp_path, fmt, "rep105")
+    ms = 1_000_000
+    odom_stamps = T0 + TICK * np.arange(11)  # 0 .. 1 s
+    bag_times = [int(t) for t in odom_stamps]
+    base_to_odom = [_yaw_pose(0.05 * k, [0.1 * k, 0.02 * k, 0.0]) for k in range(11)]
+    map_ms, map_yaw = np.array([250, 750, 1250]), np.array([0.2, 0.6, 0.4])  # amcl: stamped 200 ms after sending
+    map_xy = np.array([[1.0, 2.0], [1.4, 2.0], [1.4, 2.4]])
+    msgs = [(t, "/tf", lambda b, t=t, k=k: b.msg("tf2_msgs/msg/TFMessage", transforms=[
+        b.transform(t, "odom", "base_link", base_to_odom[k])])) for k, t in enumerate(bag_times)]
+    msgs += [(t + 1, "/odom", lambda b, t=t, k=k: _odom(b, t, "odom", "base_link", base_to_odom[k]))
+             for k, t in enumerate(bag_times)]
+    msgs += [(T0 + (int(m) - 200) * ms, "/tf", lambda b, m=m, y=y, xy=xy: b.msg("tf2_msgs/msg/TFMessage", transforms=[
+        b.transform(T0 + int(m) * ms, "map", "odom", _yaw_pose(y, [*xy, 0.0]))]))
+        for m, y, xy in zip(map_ms, map_yaw, map_xy, strict=True)]
+    msgs.append((T0, "/tf_static", lambda b: b.msg("tf2_msgs/msg/TFMessage", transforms=[
+        b.transform(T0, "base_link", "base_footprint", _yaw_pose(0.0, [0.0, 0.0, -0.1]))])))
+    _stream_bag(path, fmt, [(topic, t, make) for t, topic, make in sorted(msgs, key=lambda m: m[0])])
+
+    keep = odom_stamps >= T0 + 250 * ms  # 0.3 .. 1 s: inside map -> odom's 0.25 .. 1.25 s
+    t_ms = (odom_stamps[keep] - T0) / ms
+    yaw, x, y = (np.interp(t_ms, map_ms, v) for v in (map_yaw, map_xy[:, 0], map_xy[:, 1]))  # about z: slerp is lerp
+    want = np.stack([_yaw_pose(a, [u, v, 0.0]) @ base_to_odom[k]
+                     for a, u, v, k in zip(yaw, x, y, np.flatnonzero(keep), strict=True)])
+    with RobotLog(path, {"odom_frame": "map"}) as log:
+        assert (log.odom_frame, log.body_frame) == ("map", "base_link")
+        for source, label in (("auto", "tf: map -> base_link"), ("tf", "tf: map -> base_link"),
+                              ("odometry", "odometry /odom")):
+            traj = log.body_trajectory(source)
+            assert traj.source == label and (traj.odom_frame, traj.body_frame) == ("map", "base_link")
+            np.testing.assert_array_equal(traj.stamps_ns, odom_stamps[keep])
+            np.testing.assert_allclose(traj.body_to_odom, want, rtol=0, atol=1e-9)
+        kept, odom_to_map = log.tf.transforms_at("odom", "map", T0 + np.array([0, 500, 750, 2000]) * ms)
+        np.testing.assert_array_equal(kept, [False, True, True, False])
+        np.testing.assert_allclose(odom_to_map, [_yaw_pose(0.4, [1.2, 2.0, 0.0]), _yaw_pose(0.6, [1.4, 2.0, 0.0])],
+                                   rtol=0, atol=1e-12)
+        footprint = log.tf.transforms_at("base_footprint", "map", odom_stamps[keep])[1]  # static + moving + moving
+        np.testing.assert_allclose(footprint, want @ _yaw_pose(0.0, [0.0, 0.0, -0.1]), rtol=0, atol=1e-9)
+    with RobotLog(path) as log:  # read in odom (the default): every odometry stamp, nothing interpolated
+        traj = log.body_trajectory()
+        assert traj.source == "tf: odom -> base_link"
+        np.testing.assert_array_equal(traj.stamps_ns, odom_stamps)
+        np.testing.assert_allclose(traj.body_to_odom, np.stack(base_to_odom), rtol=0, atol=1e-12)
+    with RobotLog(path, {"odom_frame": "world"}) as log, pytest.raises(
+            InputError, match=r"^tf: no link between 'odom' and 'world' in /tf or /tf_static \(and from tf: tf: no link "
+                              r"between 'base_link' and 'world'"):
+        log.body_trajectory()
+
+
+@pytest.mark.parametrize("fmt", ("ros1", "mcap"))
+def test_odometry_without_child_frame(tmp_path, fmt, caplog):
+    """Stage's base_pose_ground_truth (embag's test.bag) leaves child_frame_id empty: its poses are
+    taken as the body's, whatever the body frame is called."""
+    poses = [_yaw_pose(0.1 * k, [1.0 + k, 0.5, 0.0]) for k in range(3)]
+    odom = [("/base_pose_ground_truth", T0 + k * TICK, lambda b, k=k: _odom(b, T0 + k * TICK, "odom", "", poses[k]))
+            for k in range(3)]
+    path = bag_path(tmp_path, fmt, "stage")
+    _stream_bag(path, fmt, odom)
+    with caplog.at_level(logging.WARNING, logger="nsim.io.robot_log"), RobotLog(path) as log:
+        assert (log.odometry.frame_id, log.odometry.child_frame_id) == ("odom", "")
+        assert (log.body_frame, log.odom_frame) == (None, "odom")
+        traj = log.body_trajectory()
+        assert (traj.source, traj.odom_frame, traj.body_frame) == ("odometry /base_pose_ground_truth", "odom", "")
+        np.testing.assert_allclose(traj.body_to_odom, np.stack(poses), rtol=0, atol=1e-12)
+        with pytest.raises(InputError, match=r"the body frame is unknown \(the Odometry /base_pose_ground_truth has no "
+                                             r"child_frame_id, no base_link/body/base_footprint frame in tf\)"):
+            log.sensor_to_body("base_laser_link")
+    assert "/base_pose_ground_truth: child_frame_id is empty; its poses are taken as the body's (body frame: unnamed)" \
+        in caplog.text
+    laser_to_base = _yaw_pose(0.0, [0.2, 0.0, 0.15])
+    path = bag_path(tmp_path, fmt, "stage_tf")
+    _stream_bag(path, fmt, [("/tf_static", T0, lambda b: b.msg("tf2_msgs/msg/TFMessage", transforms=[
+        b.transform(T0, "base_link", "base_laser_link", laser_to_base)])), *odom])
+    with RobotLog(path) as log:  # the body frame tf names: the poses are base_link's
+        assert log.body_frame == "base_link"
+        traj = log.body_trajectory()
+        assert (traj.source, traj.body_frame) == ("odometry /base_pose_ground_truth", "base_link")
+        np.testing.assert_allclose(traj.body_to_odom, np.stack(poses), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(log.sensor_to_body("base_laser_link"), laser_to_base, rtol=0, atol=1e-12)
 
 
 def test_rectified_raw_preferred_and_calibration_change(tmp_path):
@@ -641,11 +737,13 @@ def test_logs_skipped_topics(tmp_path, caplog):
     assert "several Odometry topics (/o1, /o2)" in text
 
 
-def _odom(b):
-    pose = b.msg("geometry_msgs/msg/Pose", position=b.msg("geometry_msgs/msg/Point", x=0.0, y=0.0, z=0.0),
-                 orientation=b.msg("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0))
+def _odom(b, t_ns=T0, frame="odom", child="body", child_to_frame=None):
+    m = np.eye(4) if child_to_frame is None else child_to_frame
+    q = Rotation.from_matrix(m[:3, :3]).as_quat()
+    pose = b.msg("geometry_msgs/msg/Pose", position=b.msg("geometry_msgs/msg/Point", x=m[0, 3], y=m[1, 3], z=m[2, 3]),
+                 orientation=b.msg("geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3]))
     zero = b.msg("geometry_msgs/msg/Vector3", x=0.0, y=0.0, z=0.0)
-    return b.msg("nav_msgs/msg/Odometry", header=b.header(T0, "odom"), child_frame_id="body",
+    return b.msg("nav_msgs/msg/Odometry", header=b.header(t_ns, frame), child_frame_id=child,
                  pose=b.msg("geometry_msgs/msg/PoseWithCovariance", pose=pose, covariance=np.zeros(36)),
                  twist=b.msg("geometry_msgs/msg/TwistWithCovariance",
                              twist=b.msg("geometry_msgs/msg/Twist", linear=zero, angular=zero), covariance=np.zeros(36)))

@@ -325,3 +325,20 @@ def test_compressed_image_message_from_bytes():
     for bad in (b"", b"\x89PNG\r\n", data[:2] + b"\xff\xda" + data[4:]):
         with pytest.raises(ValueError, match="JPEG"):
             compressed_image_message(7, "f", bad)
+
+
+def test_luminar_layout_time_in_two_fields_and_laser_id_as_ring():
+    """A Luminar-style cloud (seen in a public ROS 1 bag): time as uint32 time_sec + time_nsec, beam as laser_id."""
+    from nsim.io.rosbag import lidar_points, points_message
+
+    dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("time_sec", "<u4"), ("time_nsec", "<u4"),
+                   ("laser_id", "<u2")])
+    pts = np.zeros(3, dtype=dt)
+    pts["x"] = [1.0, 2.0, 3.0]
+    pts["time_sec"] = 1_600_000_000
+    pts["time_nsec"] = [0, 250_000_000, 999_999_999]
+    pts["laser_id"] = [0, 5, 9]
+    out = lidar_points(points_message(1, "lidar", pts))
+    assert out.time_field == "time_sec+time_nsec"
+    np.testing.assert_allclose(out.time - 1.6e9, [0.0, 0.25, 0.999999999], atol=1e-6)
+    assert out.ring.tolist() == [0, 5, 9] and out.xyz_m[:, 0].tolist() == [1.0, 2.0, 3.0]
