@@ -1,4 +1,5 @@
-"""Structure from motion for ``nsim reconstruct``: frames in, metric poses and sparse points out.
+"""Structure from motion for ``nsim reconstruct`` (frames in, metric poses and sparse points out) and
+for registering a robot's recording into a scene (``nsim register-log``).
 
 ``frames``  sharp, distinct frames from a video (two decoding passes), or a folder of images;
 ``colmap``  SIFT, sequential (with loop detection) or exhaustive matching, incremental mapping
@@ -7,8 +8,11 @@
             scale helpers and pose errors against ground truth (plain numpy);
 ``metric``  the scale-and-frame step: reference trajectory, known distance or camera height;
 ``imported`` poses from an exported transforms.json instead of SfM, through the same step;
-``plot``    the top-down PNG of the camera path over the sparse points.
+``plot``    the top-down PNG of the camera path over the sparse points;
+``localize`` single images (a robot's frames) localised in a scene's sparse model;
+``register`` a robot's odometry trajectory fitted to its localised frames (frame, clock offset).
 
-No workspace code here: paths and arrays in, results out (the stage is ``nsim.stages.reconstruct``).
+No workspace code here: paths and arrays in, results out (the stages are ``nsim.stages.reconstruct``
+and ``nsim.stages.register_log``).
 Import ``nsim.sfm.colmap`` (or ``cv2``) before ``pycolmap`` anywhere: see ``nsim.sfm.colmap``.
 """
