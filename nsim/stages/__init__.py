@@ -24,6 +24,8 @@ STAGE_MODULES: dict[str, str] = {
     "render": "nsim.stages.render",
     "evaluate": "nsim.stages.evaluate",
     "export": "nsim.stages.export",
+    "import-log": "nsim.stages.import_log",
+    "register-log": "nsim.stages.register_log",
 }
 
 

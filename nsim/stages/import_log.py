@@ -269,3 +269,9 @@ def write_preview(path: Path, out_dir: Path, doc: dict[str, Any], traj) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
+
+
+def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
+    """A recording is made from bag files the workspace does not hold: there is nothing to rebuild from."""
+    raise InputError("this recording was imported from bag files, which the workspace does not hold: rerun "
+                     "nsim import-log on them with --force to compare")

@@ -1,7 +1,9 @@
-"""Registering a robot's odometry frame in a scene from localised camera frames (synthetic, known truth)."""
+"""Registering a robot's odometry frame in a scene from localised camera frames (synthetic, known truth);
+the drift refinement on the robot-log generator's drifting odometry."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 
@@ -12,8 +14,10 @@ from scipy.spatial.transform import Rotation
 from nsim.errors import InputError
 from nsim.geometry.transforms import make_se3, rotation_angle_deg, umeyama
 from nsim.sfm.register import (
+    DriftModel,
     PosePairs,
     RegisterOptions,
+    drift_nodes,
     fit_pose_pairs,
     pose_residuals,
     register_trajectory,
@@ -209,3 +213,108 @@ def test_registration_failures_are_one_line_errors():
         register_trajectory(c2w, stamps, s2b[:3], body, traj)
     with pytest.raises(ValueError, match="strictly increasing"):
         register_trajectory(c2w, stamps, s2b, body, traj[::-1].copy())
+
+
+# --------------------------------------------------------------------------------------
+# Drift: the pose graph over the odometry
+# --------------------------------------------------------------------------------------
+
+
+def drifted_log(seed: int, faults=None, noise_m: float = 0.01, noise_deg: float = 0.2, outliers: float = 0.1):
+    """The figure-of-eight run (16 m in 20 s) with the robot-log generator's drifting odometry (its default
+    faults: 1 % scale, 0.2 deg/m heading bias, random walks, the odometry frame 35 deg and 1.4 m off, a 30 ms
+    clock offset), two cameras localised at the true poses + noise (per axis) + outliers.
+
+    Returns (cam_to_world, stamps_ns, sensor_to_body, body_to_odom, traj_ns, bad, truth body_to_world (N, 4, 4),
+    odom_to_world (4, 4), clock_offset_s).
+    """
+    from nsim.crowd.scenario import interpolate_poses
+    from nsim.synth.robot_log import RobotLogFaults, odom_to_world, odometry_from_truth
+
+    faults = RobotLogFaults() if faults is None else faults
+    rng = np.random.default_rng(seed)
+    traj_s = np.arange(0.0, DURATION_S, 1.0 / ODOM_HZ)
+    traj_ns = 1_700_000_000_000_000_000 + np.round(traj_s * 1e9).astype(np.int64)
+    truth = body_to_odom_at(traj_s)  # the true run, in the world
+    body_to_odom = odometry_from_truth(truth, traj_s, faults, np.random.default_rng([seed, 1]))
+    capture_s = np.arange(0.05, DURATION_S - 0.05, 1.0 / CAMERA_HZ)
+    at_capture = interpolate_poses(traj_s, truth, capture_s)
+    c2w = np.concatenate([at_capture @ FRONT, at_capture @ RIGHT])
+    stamps = np.tile(traj_ns[0] + np.round((capture_s + faults.clock_offset_s) * 1e9).astype(np.int64), 2)
+    s2b = np.concatenate([np.broadcast_to(m, at_capture.shape) for m in (FRONT, RIGHT)])
+    K = len(c2w)
+    c2w[:, :3, 3] += rng.normal(0.0, noise_m, (K, 3))
+    c2w[:, :3, :3] = c2w[:, :3, :3] @ Rotation.from_rotvec(rng.normal(0.0, math.radians(noise_deg), (K, 3))).as_matrix()
+    bad = rng.random(K) < outliers
+    c2w[bad, :3, 3] += rng.uniform(0.3, 2.0, (bad.sum(), 1)) * Rotation.random(bad.sum(), rng).apply([1.0, 0, 0])
+    c2w[bad, :3, :3] = Rotation.random(bad.sum(), rng).as_matrix() @ c2w[bad, :3, :3]
+    return c2w, stamps, s2b, body_to_odom, traj_ns, bad, truth, odom_to_world(faults), faults.clock_offset_s
+
+
+def _ate_m(body_to_world: np.ndarray, truth: np.ndarray) -> float:
+    """RMS distance of the body positions from the truth, in the world (no alignment)."""
+    return float(np.sqrt(np.mean(np.sum((body_to_world[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=-1))))
+
+
+def test_drift_refinement_recovers_the_odom_frame_that_a_rigid_fit_cannot():
+    c2w, stamps, s2b, body, traj, bad, truth, odom_to_world, clock = drifted_log(1)
+    # a rigid motion cannot absorb the drift: its residual exceeds the limits (3.9 cm / 1.07 deg median)
+    with pytest.raises(InputError, match="registration residual median .* exceeds"):
+        register_trajectory(c2w, stamps, s2b, body, traj)
+    reg = register_trajectory(c2w, stamps, s2b, body, traj, drift=DriftModel())
+    ref = reg.refined
+    assert reg.ok and ref is not None
+    # the rigid fit (kept in the registration) is off by the drift at the first pose
+    rigid_m, rigid_deg = _errors(reg.odom_to_world, odom_to_world)
+    assert rigid_m > 0.03 and rigid_deg > 1.0, (rigid_m, rigid_deg)  # measured 5.6 cm, 2.09 deg
+    # the refined odometry frame: the acceptance bound (2 cm, 0.5 deg); measured 0.5 cm, 0.06 deg
+    pos_err, rot_err = _errors(ref.odom_to_world, odom_to_world)
+    assert pos_err < 0.02 and rot_err < 0.5, (pos_err, rot_err)
+    np.testing.assert_allclose(ref.odom_to_world, ref.body_to_world[0] @ np.linalg.inv(body[0]), atol=1e-12)
+    # its standard error is of the size of the error (measured 0.9 cm, 0.17 deg)
+    assert pos_err < 3 * ref.odom_to_world_std_m < 0.06 and rot_err < 3 * ref.odom_to_world_std_deg < 1.0
+    # the whole trajectory: ATE 3.5 mm refined against 4.3 cm rigid
+    rigid_ate, refined_ate = _ate_m(reg.to_world(body), truth), _ate_m(ref.body_to_world, truth)
+    assert refined_ate < 0.2 * rigid_ate and refined_ate < 0.01, (refined_ate, rigid_ate)
+    rot = rotation_angle_deg(ref.body_to_world[:, :3, :3], truth[:, :3, :3])
+    assert np.sqrt(np.mean(rot ** 2)) < 0.2
+    # the systematic drift it found (the generator's: 1 % scale, 0.2 deg/m) and the clock (rigid: 26 ms)
+    assert ref.scale_error == pytest.approx(0.01, abs=0.003) and ref.yaw_bias_deg_per_m == pytest.approx(0.2, abs=0.1)
+    assert ref.clock_offset_s == pytest.approx(clock, abs=0.002) and 0.0 < ref.clock_offset_std_s < 0.005
+    assert abs(reg.clock_offset_s - clock) > 0.003  # the rigid fit's offset, biased by the drift
+    # outliers stay out, the residuals are the localisation noise (1 cm, 0.2 deg per axis)
+    assert not (ref.inliers & bad).any() and ref.inliers[ref.used & ~bad].mean() > 0.97
+    assert ref.median_m < 0.025 and ref.median_deg < 0.4 and ref.drift_m.max() > 0.03
+    assert "drift up to" in ref.summary()
+
+
+def test_drift_refinement_of_exact_data_is_exact():
+    from nsim.synth.robot_log import RobotLogFaults
+
+    faults = dataclasses.replace(RobotLogFaults.none(), odom_frame_yaw_deg=35.0, odom_frame_xyz_m=(1.2, -0.6, 0.5))
+    c2w, stamps, s2b, body, traj, _, truth, odom_to_world, _ = drifted_log(2, faults, 0.0, 0.0, 0.0)
+    reg = register_trajectory(c2w, stamps, s2b, body, traj, RegisterOptions(clock_offset_s=0.0), drift=DriftModel())
+    ref = reg.refined
+    pos_err, rot_err = _errors(ref.odom_to_world, odom_to_world)
+    assert pos_err < 1e-4 and rot_err < 1e-3  # interpolation of 50 Hz odometry only
+    assert _ate_m(ref.body_to_world, truth) < 1e-4 and ref.drift_m.max() < 1e-4
+    assert abs(ref.scale_error) < 1e-4 and ref.clock_offset_s == 0.0 and math.isnan(ref.clock_offset_std_s)
+    assert ref.inliers.all()
+
+
+def test_drift_nodes_follow_distance_and_turning():
+    # 1 m straight at 1 cm steps, then a turn on the spot of 30 deg in 1 deg steps
+    line = make_se3(np.broadcast_to(np.eye(3), (101, 3, 3)), np.stack([np.linspace(0, 1, 101), 0 * np.ones(101),
+                                                                       np.zeros(101)], -1))
+    turn = make_se3(_yaw(np.arange(1.0, 31.0)[:, None]), np.broadcast_to([1.0, 0.0, 0.0], (30, 3)))
+    poses = np.concatenate([line, turn])
+    nodes, path_m, turn_rad = drift_nodes(poses, 1.0, 0.1, math.radians(5.0))
+    assert path_m[-1] == pytest.approx(1.0) and turn_rad[-1] == pytest.approx(math.radians(30.0))
+    # every 10 steps along the line (0.1 m, allowing rounding), then every 5 deg, and the last pose
+    assert nodes[0] == 0 and nodes[-1] == len(poses) - 1
+    assert np.all(np.diff(path_m[nodes[nodes <= 100]]) >= 0.1 - 1e-9) and 9 <= (nodes <= 100).sum() <= 11
+    assert len(nodes[nodes > 100]) == 6
+    # a scaled odometry counts metres after the scale
+    assert len(drift_nodes(poses[:101], 2.0, 0.1, math.radians(5.0))[0]) > 15
+    with pytest.raises(ValueError, match="node_spacing_m"):
+        DriftModel(node_spacing_m=0.0)
