@@ -16,7 +16,9 @@ from nsim.io.exr import read_depth_exr, read_points_exr
 from nsim.io.robot_log import RobotLog
 from nsim.io.tum import read_tum
 from nsim.sensors.rig import CameraSensor, load_rig, static_transforms
+from nsim.stages.capture import RobotLogConfig
 from nsim.stages.import_log import inside_trajectory, kept_frames
+from nsim.stages.render import adapt_rig
 from nsim.synth.robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store
@@ -26,14 +28,7 @@ from nsim.workspace.store import Store
 def bag(tmp_path_factory):
     """A 6-tick clean log of Spot (32 x 24 cameras, a 16 x 90 LiDAR) in the robot lab; the odometry
     frame offset from the room's, and drift-free."""
-    spot = load_rig("configs/robots/spot.yaml")
-    sensors = []
-    for s in spot.sensors:
-        if isinstance(s, CameraSensor):
-            sensors.append(dataclasses.replace(s, camera=s.camera.scaled(0.05)))
-        else:
-            sensors.append(dataclasses.replace(s, config=dataclasses.replace(s.config, azimuth_samples=90)))
-    rig = dataclasses.replace(spot, sensors=tuple(sensors))
+    rig = adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
     spec = make_room("robot-lab", seed=0)
     n = 6
     cx, cy, rx, ry = spec.walk_loop_xy_m

@@ -15,7 +15,9 @@ from nsim.errors import ConfigError, InputError
 from nsim.io.images import to_uint8
 from nsim.io.robot_log import RobotLog
 from nsim.io.rosbag import stamp_ns
-from nsim.sensors.rig import CameraSensor, Rig, _linear_to_srgb, _srgb_to_linear, load_rig
+from nsim.sensors.rig import Rig, _linear_to_srgb, _srgb_to_linear, load_rig
+from nsim.stages.capture import RobotLogConfig
+from nsim.stages.render import adapt_rig
 from nsim.synth.oracle import RoomOracle
 from nsim.synth.robot_log import (
     CAMERA_TAG,
@@ -52,14 +54,7 @@ def room():
 @pytest.fixture(scope="module")
 def rig() -> Rig:
     """Spot's rig with 32x24 cameras and a 16 x 90 LiDAR."""
-    spot = load_rig("configs/robots/spot.yaml")
-    sensors = []
-    for s in spot.sensors:
-        if isinstance(s, CameraSensor):
-            sensors.append(dataclasses.replace(s, camera=s.camera.scaled(0.05)))
-        else:
-            sensors.append(dataclasses.replace(s, config=dataclasses.replace(s.config, azimuth_samples=90)))
-    return dataclasses.replace(spot, sensors=tuple(sensors))
+    return adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
 
 
 @pytest.fixture(scope="module")
