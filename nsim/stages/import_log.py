@@ -192,11 +192,12 @@ def write_recording(out_dir: Path, rl, traj, plan: list, inputs: Inputs, cfg: Co
         for kind, name, s, extrinsic, keep in plan:
             d = out_dir / kind / name
             d.mkdir(parents=True)
-            wanted = set(keep.tolist())
-            source = rl.clouds(s) if kind == "lidar" else rl.images(s)
+            read_one = rl.cloud if kind == "lidar" else rl.image
+            if len(keep) == len(s.stamps_ns):  # every frame: one streaming pass
+                source = rl.clouds(s) if kind == "lidar" else rl.images(s)
+            else:  # a subset: decode only the frames kept
+                source = ((int(i), read_one(s, int(i))) for i in keep)
             for i, data in source:
-                if i not in wanted:
-                    continue
                 path = d / f"{i:06d}"
                 if kind == "camera":
                     if data.dtype == np.uint16:
