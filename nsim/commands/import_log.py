@@ -13,13 +13,15 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @stage_options("import_log")
 @click.argument("log", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--selection", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="YAML choosing the topics (cameras, depth, lidar, odometry, tf, body_frame, odom_frame); "
-                   "default: by message type.")
+              help="YAML choosing a bag's topics (cameras, depth, lidar, odometry, tf, body_frame, odom_frame); "
+                   "default: by message type. Not for a recording folder.")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, log, selection):
-    """Import a robot's recording: LOG is a ROS 2 bag directory (sqlite3 or mcap) or ROS 1 .bag file(s).
-    Writes a recording artifact: every camera, depth and LiDAR stream with stamps, intrinsics and
-    extrinsics, and the body's trajectory in the odometry frame."""
+    """Import a robot's recording: LOG is a ROS 2 bag directory (sqlite3 or mcap), ROS 1 .bag file(s),
+    or a recording folder (a directory without metadata.yaml: trajectory.tum, rig.yaml or rig.urdf,
+    cameras/<name>/ with camera_info.yaml, optional depth/<name>/ and lidar/<name>/; see
+    nsim.io.robot_folder). Writes a recording artifact: every camera, depth and LiDAR stream with
+    stamps, intrinsics and extrinsics, and the body's trajectory in the odometry frame."""
     from nsim.stages import import_log
 
     cfg = resolve_config(import_log.Config, "import_log", preset, config_file, overrides)

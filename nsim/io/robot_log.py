@@ -147,7 +147,7 @@ class Selection:
         if not isinstance(data, Mapping):
             raise InputError(f"{where}: expected a mapping, got {type(data).__name__}")
         keys = ("cameras", "depth", "lidar", "odometry", "tf", "tf_static", "body_frame", "odom_frame")
-        _check_keys(data, keys, where)
+        check_keys(data, keys, where)
         out: dict[str, Any] = {}
         for group in ("cameras", "depth"):
             if data.get(group) is not None:
@@ -157,7 +157,7 @@ class Selection:
             lidar = {}
             for name, entry in _mapping(data["lidar"], f"{where}.lidar").items():
                 if isinstance(entry, Mapping):
-                    _check_keys(entry, ("points",), f"{where}.lidar.{name}")
+                    check_keys(entry, ("points",), f"{where}.lidar.{name}")
                     entry = entry.get("points")
                 lidar[name] = _topic_name(entry, f"{where}.lidar.{name}")
             out["lidar"] = lidar
@@ -186,7 +186,7 @@ def load_selection(path: str | os.PathLike) -> Selection:
     return Selection.from_data(data, str(path))
 
 
-def _check_keys(data: Mapping, known: Sequence[str], where: str) -> None:
+def check_keys(data: Mapping, known: Sequence[str], where: str) -> None:
     for key in data:
         if key not in known:
             close = difflib.get_close_matches(str(key), known, n=1)
@@ -211,7 +211,7 @@ def _camera_topics(entry: Any, where: str) -> CameraTopics:
         return CameraTopics(_topic_name(entry, where))
     if not isinstance(entry, Mapping):
         raise InputError(f"{where}: expected a topic or a mapping with image (and info, rectified), got {entry!r}")
-    _check_keys(entry, ("image", "info", "rectified"), where)
+    check_keys(entry, ("image", "info", "rectified"), where)
     if "image" not in entry:
         raise InputError(f"{where}: missing key 'image'")
     info = None if entry.get("info") is None else _topic_name(entry["info"], f"{where}.info")

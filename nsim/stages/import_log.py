@@ -1,17 +1,21 @@
-"""``nsim import-log``: a robot's recording (a ROS 1 or ROS 2 bag) in, a ``recording`` artifact out.
+"""``nsim import-log``: a robot's recording (a ROS 1 or ROS 2 bag, or a plain folder) in, a ``recording`` artifact out.
 
-The bag is read with :class:`nsim.io.robot_log.RobotLog` (topics by a selection YAML or by
+A bag is read with :class:`nsim.io.robot_log.RobotLog` (topics by a selection YAML or by
 message type, see its docstring): every camera, depth camera and LiDAR stream with its
 timestamps, its intrinsics (CameraInfo) and its extrinsic to the robot's body (/tf_static), and
-the body's trajectory in the odometry frame (/tf or nav_msgs/Odometry). Bag files are inputs by
-content (their digests enter the action key), so a re-recorded bag never serves a stale result.
-Everything is checked before anything is written: a bad bag is one line naming the topic (and
-message index), exit 2, nothing published.
+the body's trajectory in the odometry frame (/tf or nav_msgs/Odometry). A directory without
+``metadata.yaml`` is a recording folder, read with :class:`nsim.io.robot_folder.RobotFolder`
+(its docstring has the layout: per-stream folders of frames with camera_info.yaml, trajectory.tum,
+rig.yaml or rig.urdf); it has the same interface, so what follows is one code path. Inputs count
+by content (their digests enter the action key), so a re-recorded log never serves a stale result.
+Everything is checked before anything is written: bad input is one line naming the topic (and
+message index) or the file, exit 2, nothing published.
 
 Artifact layout (kind ``recording``)::
 
-    recording.json       format, the bags (names, digests), body and odom frames, the trajectory's
-                         source, and per stream: kind (camera | depth | lidar), topic, frame_id,
+    recording.json       format, the bags (their names) or the folder (its name), body and odom frames,
+                         the trajectory's source, and per stream: kind (camera | depth | lidar), topic
+                         (a folder's: the stream's folder, e.g. cameras/front), frame_id,
                          camera (nsim.geometry.Camera.to_dict), sensor_to_body (4 x 4), encoding,
                          the frames kept (indices into the topic) and how many lie inside the
                          trajectory's time span (within ``max_gap_s`` of a pose stamp)
@@ -63,8 +67,9 @@ class Config:
 
 @dataclasses.dataclass(frozen=True)
 class Inputs:
-    """log: one ROS 2 bag directory (or its .db3 / .mcap), or one or more ROS 1 .bag files (a split
-    recording); selection: a YAML choosing topics (``nsim.io.robot_log.Selection``)."""
+    """log: one ROS 2 bag directory (or its .db3 / .mcap), one or more ROS 1 .bag files (a split
+    recording), or one recording folder (``nsim.io.robot_folder``); selection: a YAML choosing a
+    bag's topics (``nsim.io.robot_log.Selection``)."""
 
     log: tuple[Path, ...]
     selection: Path | None = None
@@ -77,6 +82,18 @@ class Inputs:
                 raise InputError(f"{p}: no such file or directory")
         if self.selection is not None and not Path(self.selection).is_file():
             raise InputError(f"--selection {self.selection}: not a file")
+        if self.is_folder():
+            if len(self.log) > 1:
+                raise InputError(f"{self.log[0]}: a recording folder is imported alone (got {len(self.log)} paths)")
+            if self.selection is not None:
+                raise InputError(f"--selection {self.selection}: chooses a bag's topics; {self.log[0]} is a recording "
+                                 "folder, whose streams are its folders")
+
+    def is_folder(self) -> bool:
+        """A recording folder (a directory that is not a ROS 2 bag) rather than a bag."""
+        from nsim.io.robot_folder import is_robot_folder
+
+        return any(is_robot_folder(p) for p in self.log)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,8 +110,8 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     files = {"log": [[Path(p).name, sha256_path(Path(p))] for p in inputs.log]}
     if inputs.selection is not None:
         files["selection"] = sha256_path(Path(inputs.selection))
-    return ctx.store.action_key(STAGE, VERSION, cfg, {}, seed=ctx.seed,
-                                extra={"files": files, "rosbags": metadata.version("rosbags")})
+    extra = {"files": files} if inputs.is_folder() else {"files": files, "rosbags": metadata.version("rosbags")}
+    return ctx.store.action_key(STAGE, VERSION, cfg, {}, seed=ctx.seed, extra=extra)
 
 
 def kept_frames(n: int, stride: int, max_frames: int) -> np.ndarray:
@@ -116,6 +133,18 @@ def inside_trajectory(stamps_ns: np.ndarray, traj_ns: np.ndarray, max_gap_s: flo
     return span & (gap <= int(round(max_gap_s * 1e9)))
 
 
+def open_log(inputs: Inputs):
+    """The reader of the log: a :class:`~nsim.io.robot_folder.RobotFolder` for a recording folder, else a
+    :class:`~nsim.io.robot_log.RobotLog`; both have the interface ``run`` uses (a context manager)."""
+    from nsim.io.robot_folder import RobotFolder
+    from nsim.io.robot_log import RobotLog, load_selection
+
+    if inputs.is_folder():
+        return RobotFolder(Path(inputs.log[0]))
+    selection = load_selection(inputs.selection) if inputs.selection is not None else None
+    return RobotLog([Path(p) for p in inputs.log], selection)
+
+
 def _streams(rl) -> list[tuple[str, str, Any]]:
     """``(kind, name, stream)`` of every stream the log selected, in a fixed order."""
     out = [("camera", n, s) for n, s in sorted(rl.cameras.items())]
@@ -125,16 +154,13 @@ def _streams(rl) -> list[tuple[str, str, Any]]:
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
-    from nsim.io.robot_log import RobotLog, load_selection
-
     inputs.validate()
     store = ctx.store
     key = action_key(inputs, cfg, ctx)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(recording=hit.id, cache_hit=True)
-    selection = load_selection(inputs.selection) if inputs.selection is not None else None
     t0 = time.perf_counter()
-    with RobotLog([Path(p) for p in inputs.log], selection) as rl:
+    with open_log(inputs) as rl:
         streams = _streams(rl)
         if not streams:
             raise InputError(f"{rl.name}: no camera, depth or LiDAR topic selected (topics: "
@@ -164,9 +190,20 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     return Outputs(recording=out.ref)
 
 
+def _source(inputs: Inputs) -> dict[str, Any]:
+    """What recording.json says of the log: the bags' names or the folder's, and what the stamps are."""
+    clock = "(each stream on its sensor's clock)"
+    if inputs.is_folder():
+        return {"folder": {"name": Path(inputs.log[0]).name},
+                "time": f"int64 nanoseconds, the frames' stamps as the folder gives them {clock}"}
+    return {"bags": [{"name": Path(p).name} for p in inputs.log],
+            "time": f"int64 nanoseconds, the messages' header stamps {clock}"}
+
+
 def write_recording(out_dir: Path, rl, traj, plan: list, inputs: Inputs, cfg: Config,
                     show_progress: bool) -> dict[str, Any]:
-    """Write the artifact's files (module docstring) from an open ``RobotLog``; returns recording.json's content."""
+    """Write the artifact's files (module docstring) from an open ``RobotLog`` or ``RobotFolder``; returns
+    recording.json's content."""
     from nsim.io.exr import write_depth_exr, write_points_exr
     from nsim.io.images import write_image, write_png16
     from nsim.io.tum import Trajectory, write_tum
@@ -177,8 +214,7 @@ def write_recording(out_dir: Path, rl, traj, plan: list, inputs: Inputs, cfg: Co
     steps = np.linalg.norm(np.diff(traj.body_to_odom[:, :3, 3], axis=0), axis=-1)
     doc: dict[str, Any] = {
         "format": 1,
-        "bags": [{"name": Path(p).name} for p in inputs.log],
-        "time": "int64 nanoseconds, the messages' header stamps (each stream on its sensor's clock)",
+        **_source(inputs),
         "body_frame": traj.body_frame, "odom_frame": traj.odom_frame,
         "trajectory": {"source": traj.source, "poses": int(len(traj.stamps_ns)),
                        "duration_s": float((traj.stamps_ns[-1] - traj.stamps_ns[0]) / 1e9),
@@ -273,6 +309,7 @@ def write_preview(path: Path, out_dir: Path, doc: dict[str, Any], traj) -> None:
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    """A recording is made from bag files the workspace does not hold: there is nothing to rebuild from."""
-    raise InputError("this recording was imported from bag files, which the workspace does not hold: rerun "
-                     "nsim import-log on them with --force to compare")
+    """A recording is made from a log (bag files or a folder) the workspace does not hold: there is
+    nothing to rebuild from."""
+    raise InputError("this recording was imported from a robot log (bag files or a folder), which the workspace "
+                     "does not hold: rerun nsim import-log on it with --force to compare")
