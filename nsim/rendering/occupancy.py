@@ -379,12 +379,16 @@ STOP_OPTICAL_DEPTH = math.log(2.0)
 
 @torch.no_grad()
 def opaque_range(sigma: Tensor, lo: Tensor, hi: Tensor, origins: Tensor, dirs: Tensor, near_m: float, far_m: float,
-                 step_m: float, stop_optical_depth: float = STOP_OPTICAL_DEPTH, block: int = 64) -> Tensor:
+                 step_m: float, stop_optical_depth: float = STOP_OPTICAL_DEPTH, block: int = 64,
+                 z_range: tuple[float, float] | None = None) -> Tensor:
     """Range along each ray at which its optical depth first exceeds ``stop_optical_depth``: ``(R,)`` (inf: never).
 
     sigma: (X, Y, Z) density (1/m) over the box ``[lo, hi]`` (3,), constant per cell; origins, dirs:
     (R, 3), dirs unit. Samples at ``t0 + k step_m`` from ``t0 = max(near_m, where the ray enters
     the box)`` until it leaves the box or passes ``far_m``, each adding ``sigma step_m``.
+    ``z_range (z0, z1)``: only stops within that slab are wanted: a ray is followed (from ``t0``, so
+    what lies before the slab still occludes) only until it leaves the slab, and one that leaves it
+    without stopping, or never reaches it, gets inf. A camera above the slab looking up costs nothing.
     """
     shape = torch.tensor(sigma.shape, device=sigma.device)
     cell = (hi - lo) / shape
@@ -392,6 +396,10 @@ def opaque_range(sigma: Tensor, lo: Tensor, hi: Tensor, origins: Tensor, dirs: T
     ta, tb = (lo - origins) / safe, (hi - origins) / safe
     t_in = torch.clamp(torch.minimum(ta, tb).amax(-1), min=near_m)
     t_out = torch.clamp(torch.maximum(ta, tb).amin(-1), max=far_m)
+    if z_range is not None:
+        dz = safe[:, 2]
+        za, zb = (z_range[0] - origins[:, 2]) / dz, (z_range[1] - origins[:, 2]) / dz
+        t_out = torch.minimum(t_out, torch.maximum(za, zb))  # where the ray leaves the slab for good
     out = torch.full((len(origins),), math.inf, device=sigma.device)
     flat = sigma.reshape(-1).float()
     live = torch.nonzero(t_in < t_out).squeeze(-1)
@@ -419,22 +427,24 @@ HIT_MIN_RAYS = 2
 """Rays of the training views that must stop in a band cell (``observed_columns``' hits) to make it occupied."""
 HIT_DEPTH_CELLS = 1.0
 """How far past the half-transmittance point a ray's stop is taken (in cells): into the matter it met, not in front."""
-OBSTACLE_DEPTH_PX = 256
-"""Width of the views' depth maps in ``obstacle_map``. On the five test rooms' trained scenes (cpu preset,
-5 cm cells) 256 px against 128 px: free-space IoU 0.910 against 0.905 on the kitchen (its nooks between
-cabinets are carved by finer rays), 0.933-0.944 against 0.929-0.940 on the others; the bake takes about
-twice as long."""
+OBSTACLE_DEPTH_PIXELS = 256 * 192
+"""Pixels of each view's depth map in ``obstacle_map`` (the camera scaled down to about this many, its
+aspect kept; a smaller camera as it is). On the five test rooms' trained scenes (320 x 240 captures, cpu
+preset, 5 cm cells) 256 x 192 against 128 x 96: free-space IoU 0.910 against 0.905 on the kitchen (its
+nooks between cabinets are carved by finer rays), 0.933-0.944 against 0.929-0.940 on the others; the
+bake takes about twice as long. A pixel count, not a width: a portrait phone photo at 256 px wide
+would cast 2.4 times the rays of a landscape one."""
 
 
 @torch.no_grad()
 def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi: np.ndarray,
-                     band_layers: tuple[int, int], views: CameraViews, depth_width_px: int = 128,
+                     band_layers: tuple[int, int], views: CameraViews, depth_pixels: int = 128 * 96,
                      surface_tolerance_cells: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What the training views saw of the band layers ``[k0, k1)`` of the density grid ``sigma (X, Y, Z)``
     (1/m, constant per cell, over the box ``[lo, hi]``): ``(observed (X, Y) bool, carved (X, Y, K) bool,
     hits (X, Y, K) int32)``, ``K = k1 - k0``.
 
-    Per view, a depth map ``depth_width_px`` wide (the camera scaled down) holds the range at which
+    Per view, a depth map of about ``depth_pixels`` pixels (the camera scaled down) holds the range at which
     each pixel ray's transmittance falls to 1/2 (``opaque_range``: the median depth the NeRF renders;
     steps of half a cell from ``near_m`` to ``far_m``).
 
@@ -472,12 +482,18 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
     hits = torch.zeros(X * Y * (k1 - k0), dtype=torch.int32, device=device)
     remaining = torch.arange(len(centres), device=device)  # the cells not carved yet
     step_m = 0.5 * float(cell.min())
+    # only where a ray stops near the band matters (a stop further on is "beyond every band cell"):
+    # rays are followed until they leave the band's slab widened by the surface slack and the hit
+    # depth, plus two cells for pixel-centre against cell-centre directions
+    margin = slack + (HIT_DEPTH_CELLS + 2.0) * float(cell.max())
+    slab = (float(lo_t[2] + k0 * cell[2]) - margin, float(lo_t[2] + k1 * cell[2]) + margin)
     small_cams = {}
     for n in range(len(views.cam_to_world)):
         ci = int(views.camera_index[n])
         if ci not in small_cams:
             cam = views.cameras[ci]
-            small = cam.scaled(depth_width_px / cam.width) if cam.width > depth_width_px else cam
+            pixels = cam.width * cam.height
+            small = cam.scaled(math.sqrt(depth_pixels / pixels)) if pixels > depth_pixels else cam
             d = small.pixel_dirs_cam(like=torch.zeros((), dtype=torch.float64)).to(torch.float32).to(device)
             small_cams[ci] = (small, d)
         small, dirs_cam = small_cams[ci]
@@ -486,7 +502,8 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
         rot, origin = c2w[:3, :3], c2w[:3, 3]
         ok_dir = torch.isfinite(dirs_cam).all(-1).reshape(-1)
         d_world = torch.nn.functional.normalize(dirs_cam.reshape(-1, 3)[ok_dir] @ rot.T, dim=-1)
-        stop = opaque_range(sigma, lo_t, hi_t, origin.expand_as(d_world), d_world, views.near_m, views.far_m, step_m)
+        stop = opaque_range(sigma, lo_t, hi_t, origin.expand_as(d_world), d_world, views.near_m, views.far_m, step_m,
+                            z_range=slab)
         # hits: where the rays stopped, one cell into the matter, counted per band cell
         stopped = torch.isfinite(stop)
         end = origin + (stop[stopped, None] + HIT_DEPTH_CELLS * float(cell.min())) * d_world[stopped]
@@ -519,7 +536,7 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
 def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple[float, float], cell_m: float,
                  density_threshold: float, samples_per_cell: int = 2, generator: torch.Generator | None = None,
                  chunk: int = 1 << 16, device: str | torch.device = "cpu", views: CameraViews | None = None,
-                 depth_width_px: int = OBSTACLE_DEPTH_PX) -> ObstacleMap:
+                 depth_pixels: int = OBSTACLE_DEPTH_PIXELS) -> ObstacleMap:
     """2D obstacles over the scene box's xy extent: density above ``density_threshold`` in the height band.
 
     With ``views`` (the training cameras), also which cells were observed (``observed_columns``):
@@ -527,7 +544,7 @@ def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple
     (within the box), so that whatever stands between a camera and the band occludes it.
     With views, a band cell is occupied when at least ``HIT_MIN_RAYS`` of the views' rays stopped
     in it or its density is above the threshold, and no view's rays went through its centre and on
-    (``observed_columns``: hits and carving, on depth maps ``depth_width_px`` wide; a thin table top
+    (``observed_columns``: hits and carving, on depth maps of ``depth_pixels`` pixels; a thin table top
     stops rays though point samples of its density miss it, and what rays cross is not matter:
     haze in the air, and the soft front a NeRF draws a few centimetres before a surface, where rays
     grazing the surface stop: the carving decides at the cell's centre, as the ground truth does).
@@ -555,7 +572,7 @@ def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple
     observed = None
     if views is not None:
         observed, carved, hits = observed_columns(dens, density_threshold, lo, hi, (below, below + nz), views,
-                                                  depth_width_px)
+                                                  depth_pixels)
         dense = (dense | (hits >= HIT_MIN_RAYS)) & ~carved
     occupied = dense.any(-1)
     return ObstacleMap((float(lo[0]), float(lo[1])), float(cell_m), occupied, (z_lo, z_hi), observed)

@@ -267,7 +267,7 @@ def test_the_soft_front_a_nerf_draws_before_a_surface_is_free():
     aabb = np.array([[-3.0, -3.0, -0.2], [3.0, 3.0, 1.2]])
     om = obstacle_map(_floor_and(block_with_front), aabb, (0.1, 1.0), 0.05, 50.0, samples_per_cell=4,
                       generator=torch.Generator().manual_seed(0), views=_box_views(n=24),
-                      depth_width_px=128)
+                      depth_pixels=128 * 96)
     r = np.abs(om.cell_centres_m()).max(-1)
     assert om.occupied[r < 0.25].all()
     front = (r > 0.35) & (r < 0.45)
