@@ -272,3 +272,28 @@ def test_the_soft_front_a_nerf_draws_before_a_surface_is_free():
     assert om.occupied[r < 0.25].all()
     front = (r > 0.35) & (r < 0.45)
     assert om.free[front].mean() > 0.9, om.free[front].mean()
+
+
+def test_opaque_range_in_a_slab_keeps_stops_inside_it_and_drops_the_rest():
+    """A wall (x > 1.5 m), a floor (z < -1 m) and a ceiling (z > 1.8 m), rays from (0, 0, 1): with ``z_range`` a ray's stop is the same where
+    it lies inside the slab, inf where it lies beyond it, and a ray that never meets the slab is inf."""
+    from nsim.rendering.occupancy import opaque_range
+
+    shape = (40, 40, 40)
+    lo, hi = torch.tensor([-2.0, -2.0, -2.0]), torch.tensor([2.0, 2.0, 2.0])
+    centres = [lo[a] + (torch.arange(shape[a]) + 0.5) * (hi[a] - lo[a]) / shape[a] for a in range(3)]
+    x, _, z = torch.meshgrid(*centres, indexing="ij")
+    sigma = torch.where((x > 1.5) | (z < -1.0) | (z > 1.8), 100.0, 0.0)  # a wall, a floor and a ceiling
+    origins = torch.tensor([[0.0, 0.0, 1.0]] * 4)
+    dirs = torch.nn.functional.normalize(torch.tensor([
+        [1.0, 0.0, 0.0],    # level: meets the wall at x = 1.5, z = 1 (inside the slab below)
+        [0.0, 0.0, -1.0],   # straight down: meets the floor at z = -1 (outside the slab)
+        [0.0, 0.0, 1.0],    # up: meets the ceiling at z = 1.8, never the slab
+        [1.0, 0.0, -0.5],   # down and out: meets the wall at x = 1.5, z = 0.25 (inside)
+    ]), dim=-1)
+    full = opaque_range(sigma, lo, hi, origins, dirs, 0.0, 30.0, 0.05)
+    slab = opaque_range(sigma, lo, hi, origins, dirs, 0.0, 30.0, 0.05, z_range=(0.0, 1.5))
+    assert torch.isfinite(full).all()
+    assert abs(float(full[0]) - 1.5) < 0.1 and abs(float(full[1]) - 2.0) < 0.1
+    assert slab[0] == full[0] and slab[3] == full[3]
+    assert torch.isinf(slab[1]) and torch.isinf(slab[2])
