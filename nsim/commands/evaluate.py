@@ -12,9 +12,12 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.command("evaluate")
 @stage_options("evaluate")
 @click.option("--table", required=True, metavar="NAME",
-              help="scenes | spot-rgb | spot-depth | slam | detection (the paper's tables).")
+              help="scenes | spot-rgb | spot-depth | lidar | slam | detection (the paper's tables; lidar: "
+                   "recording-mode renders).")
 @click.option("--render", "renders", multiple=True, required=True,
-              help="A render artifact to score (repeatable: e.g. one poses-mode render per environment for scenes).")
+              help="A render artifact to score (repeatable: e.g. one poses-mode render per environment for scenes). "
+                   "Its mode picks the ground truth: the test room's oracle, or for a recording-mode render "
+                   "(nsim render --recording) the robot's recording it renders.")
 @click.option("--onnx", type=click.Path(dir_okay=False), default=None,
               help="detection.detector=onnx: a YOLO-style ONNX model's weights.")
 @click.option("--coco-sim", type=click.Path(dir_okay=False), default=None,
@@ -23,7 +26,8 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
               help="detection.detector=coco: detections on the real frames (COCO JSON).")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, table, renders, onnx, coco_sim, coco_real):
-    """Score renders against ground truth and write one of the paper's tables (an evaluation artifact)."""
+    """Score renders against ground truth (the test room's oracle or a robot's recording) and write one of the
+    paper's tables (an evaluation artifact)."""
     from nsim.stages import evaluate
 
     cfg = resolve_config(evaluate.Config, "evaluate", preset, config_file, [*overrides, f"table={table}"])

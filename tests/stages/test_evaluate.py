@@ -161,11 +161,12 @@ def test_spot_rgb_and_depth_tables(world):
 def test_spot_render_equal_to_the_oracle_is_exact(world):
     """Camera images and depth made by the oracle at the frames' camera poses score exactly: checks
     that evaluation finds the same cameras, poses, exposure and depth kind as the renderer."""
+    from nsim.evaluation.oracle import sensor_depth_gt
+    from nsim.evaluation.renders import uint8_rgb
     from nsim.io.exr import write_depth_exr
     from nsim.io.images import write_image
     from nsim.io.transforms_json import read_transforms
     from nsim.sensors.rig import Rig
-    from nsim.stages.evaluate import sensor_depth_gt, uint8_rgb
     from nsim.synth.oracle import RoomOracle
     from nsim.synth.room import RoomSpec
 
@@ -262,18 +263,20 @@ def test_detection_ground_truth_is_the_oracle_with_the_people(people):
     """A render whose frames are the oracle's with the actors detects exactly what the ground truth does,
     and its person masks are the oracle's: the evaluation poses and dresses the people as the render does."""
     from nsim.config import load_config
+    from nsim.evaluation.renders import uint8_rgb
+    from nsim.evaluation.tables import Evaluation
     from nsim.io.coco import write_instance_mask
     from nsim.io.images import write_image
     from nsim.io.transforms_json import read_transforms
     from nsim.sensors.rig import Rig
     from nsim.stages import evaluate as ev_stage
-    from nsim.stages.evaluate import Evaluator, Inputs, uint8_rgb
+    from nsim.stages.evaluate import Inputs
 
     ctx = RunContext(store=people, device_spec="cpu")
     cfg = load_config(ev_stage.Config, stage="evaluate", preset="tiny", overrides=["table=detection"])
-    evaluator = Evaluator(Inputs(renders=(people.resolve("render/people"),)), cfg, ctx)
-    actors = evaluator.actors(evaluator.renders[0])
-    oracle = evaluator.oracle(evaluator.renders[0].lineage.capture)
+    evaluation = Evaluation(Inputs(renders=(people.resolve("render/people"),)), cfg, ctx)
+    actors = evaluation.truth.actors(evaluation.renders[0])
+    oracle = evaluation.truth.oracle(evaluation.renders[0].lineage.capture)
 
     def oracle_frames(d: Path) -> None:
         rig = Rig.from_resolved(json.loads((d / "rig.json").read_text()))
@@ -300,8 +303,8 @@ def test_detection_ground_truth_is_the_oracle_with_the_people(people):
 
 def test_upright_turns_of_spot_cameras():
     """Spot's front cameras are rolled ~90 deg, its right camera is upside down: turned so up is up."""
+    from nsim.evaluation.tables import upright_turns
     from nsim.sensors.rig import Rig
-    from nsim.stages.evaluate import upright_turns
 
     rig = Rig.load(SPOT)
     turns = {s.name: upright_turns(s) for s in rig.cameras}
