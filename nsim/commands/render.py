@@ -13,7 +13,10 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @stage_options("render")
 @click.option("--trajectory", default=None, help="A trajectory artifact (nsim simulate): render the robot's sensors per tick.")
 @click.option("--poses", default=None, help="A poses or capture artifact: render its frames' cameras (for evaluation).")
-@click.option("--scene", default=None, help="Scene checkpoint (default: the one the trajectory's scenario names).")
+@click.option("--recording", default=None,
+              help="A registration artifact (nsim register-log): render exactly its recording's sensors, frame for frame.")
+@click.option("--scene", default=None, help="Scene checkpoint (default: the one the trajectory's scenario names; "
+                                            "required with --poses and --recording).")
 @click.option("--rig", type=click.Path(dir_okay=False), default=None,
               help="Robot rig file (trajectory mode), e.g. configs/robots/spot.yaml.")
 @click.option("--humans", multiple=True, help="Human checkpoint(s) that draw the trajectory's people (repeatable).")
@@ -30,20 +33,21 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--rosbag", "rosbag_path", type=click.Path(file_okay=False), default=None,
               help="--trajectory: also export the render as a ROS 2 bag, a new directory (its parent must exist).")
 @click.pass_context
-def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, poses, scene, rig, humans, engine,
-            address, workers, gpus_per_worker, cpus_per_worker, max_restarts, rosbag_path):
-    """Render RGB, depth and LiDAR of a rig along a trajectory (or a poses artifact's cameras)."""
+def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, poses, recording, scene, rig, humans,
+            engine, address, workers, gpus_per_worker, cpus_per_worker, max_restarts, rosbag_path):
+    """Render RGB, depth and LiDAR of a rig along a trajectory (or a poses artifact's cameras, or exactly the
+    sensors of a registered robot recording)."""
     from nsim.distributed import check_ray
     from nsim.errors import InputError
     from nsim.rendering.engine import EngineConfig
     from nsim.stages import render
 
-    if (trajectory is None) == (poses is None):
-        raise click.UsageError("give exactly one of --trajectory or --poses")
+    if sum(x is not None for x in (trajectory, poses, recording)) != 1:
+        raise click.UsageError("give exactly one of --trajectory, --poses or --recording")
     # every destination is checked before any work: nothing is rendered or published for a run that cannot finish
-    if rosbag_path and poses is not None:
+    if rosbag_path and trajectory is None:
         raise click.UsageError(f"--rosbag {rosbag_path}: only a --trajectory render (a robot's run) exports to "
-                               "a ROS 2 bag, not a --poses render")
+                               f"a ROS 2 bag, not a {'--poses' if poses is not None else '--recording'} render")
     if rosbag_path:
         from nsim.io.rosbag import check_bag_destination
 
@@ -57,7 +61,7 @@ def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, p
     eng = EngineConfig(engine=engine, address=address, workers=workers, num_gpus_per_worker=gpus_per_worker,
                        num_cpus_per_worker=cpus_per_worker, max_restarts=max_restarts)
     inputs = render.Inputs(trajectory=trajectory, poses=poses, scene=scene, rig=Path(rig) if rig else None,
-                           humans=tuple(humans))
+                           humans=tuple(humans), registration=recording)
     out = render.run(inputs, cfg, ctx, engine=eng)
     if out.shards_reused:
         click.echo(f"resumed: {out.shards_reused} shard(s) were already rendered", err=True)

@@ -1,6 +1,6 @@
 """``nsim render``: the robot's sensors in the trained world, frame by frame, as a ``render`` artifact.
 
-Two modes:
+Three modes:
 
 ``trajectory``
     For each selected tick of a ``trajectory`` artifact (``nsim simulate``), for each sensor of a
@@ -11,6 +11,13 @@ Two modes:
 ``poses``
     Every frame (or the held-out frames) of a ``poses`` / ``capture`` artifact with the frame's own
     camera: what ``nsim evaluate`` compares with the captured images.
+``recording``
+    Exactly the recorded sensors of a ``registration`` (``nsim register-log``) of a ``recording``
+    (``nsim import-log``), so that sim and real frames pair one to one: per stream, per kept frame,
+    its stamp moved onto the odometry clock (``nsim.rendering.recording``), the body pose
+    interpolated in the registration's world trajectory, the stream's own camera model at its
+    recorded size, or (LiDAR) one ray along each recorded point's direction. Frames outside the
+    trajectory's span are skipped and counted. No sensor noise; no people (yet).
 
 Artifact layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses)::
 
@@ -29,7 +36,21 @@ Artifact layout (``NNNNNN`` = tick index in the trajectory, or frame index in th
                                  frame), range, intensity (= opacity), ring; see nsim.io.lidar_exr
     <lidar>/scan/NNNNNN.ply      the returns as a point cloud (sensor frame)
     preview/contact_sheet.png    every ``preview_every``-th frame: the cameras side by side + LiDAR BEV
+                                 (recording mode: each camera's recorded frame beside the rendered one,
+                                 the LiDAR's recorded points grey under the rendered ones)
     preview/preview.mp4          (video: true) the same for every frame
+
+Recording mode mirrors the recording's layout, file for file, for the frames rendered (``NNNNNN``
+= the recording's own frame index, ``<name>`` the stream's)::
+
+    render.json                  mode "recording", the recording, registration and scene ids, per
+                                 stream: name, kind, frames (index, stamp_ns, odom_time_ns,
+                                 sensor_to_world 4 x 4) and skipped_outside_trajectory
+    camera/<name>/NNNNNN.png     8-bit sRGB at the recorded size; grey where the recording's is grey
+    depth/<name>/NNNNNN.exr      float32 channel Z: z-depth in metres; inf = no return, NaN = invalid
+    lidar/<name>/NNNNNN.exr      one row of the recorded file's N points, in its order: X Y Z (sensor
+                                 frame, metres; NaN without a return) and range (metres along the
+                                 recorded point's direction; inf = no return, NaN = no direction)
 
 Sharding: frames are cut into fixed shards of ``shard_frames``; each shard is rendered into its
 own directory under ``<workspace>/tmp/render.<key>.shards/`` and published there by an atomic
@@ -71,13 +92,20 @@ DEPTH_ATTRIBUTE = {
 
 @dataclasses.dataclass(frozen=True)
 class Config:
-    tick_stride: int = param(1, ge=1, help="render every k-th tick (trajectory) or frame (poses)")
-    start: int = param(0, ge=0, help="first tick / frame")
-    max_frames: int | None = param(None, ge=1, help="render at most this many ticks / frames")
+    tick_stride: int = param(1, ge=1, help="render every k-th tick (trajectory) or frame (poses; recording: of "
+                                           "each stream's kept frames)")
+    start: int = param(0, ge=0, help="first tick / frame index")
+    max_frames: int | None = param(None, ge=1, help="render at most this many ticks / frames (recording: per stream)")
     frames: str = param("all", choices=("all", "heldout"), help="poses mode: all frames or the scene's held-out ones")
-    sensors: tuple[str, ...] = param((), help="rig sensors to render (empty: all)")
-    image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow)")
-    lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep")
+    sensors: tuple[str, ...] = param((), help="rig sensors to render, or (recording mode) the recording's streams, "
+                                              "each <kind>/<name> or a bare <name> for every kind (empty: all)")
+    camera_clock_kinds: tuple[str, ...] = param(("camera",), help="recording mode: the stream kinds stamped on the "
+                                                "cameras' clock (shifted by the registration's clock_offset_s); the "
+                                                "others are stamped on the odometry's")
+    image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow; "
+                                                       "recording mode renders the recorded sizes: 1 only)")
+    lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep (recording "
+                                                                 "mode renders the recorded points: 1 only)")
     shard_frames: int = param(8, ge=1, help="frames per shard (the unit of resume and of distribution)")
     method: str = param("proposal", choices=("proposal", "march"),
                         help="march: constant steps with the occupancy grid and early termination; proposal: "
@@ -97,7 +125,8 @@ class Config:
                                  "background (sampler.background, as it was trained); last_sample, the scene "
                                  "field's colour at the ray's last sample (nerfacto's default)")
     rgb_exr: bool = param(False, help="also write linear RGB EXR")
-    noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded)")
+    noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded; recording mode has no rig "
+                                   "and renders noise-free)")
     culling: bool = param(True, help="query people's NeRFs only on rays that can see their posed box (2D bound for "
                                       "cameras, ray-box test); false: on every ray (the same images, slower)")
     preview_every: int = param(10, ge=1, help="contact sheet: every k-th rendered frame")
@@ -108,14 +137,16 @@ class Config:
 
 @dataclasses.dataclass(frozen=True)
 class Inputs:
-    """trajectory or poses (exactly one); scene: a scene-checkpoint (default: the one the
-    trajectory names); rig: a rig file (trajectory mode); humans: human-checkpoint ids."""
+    """trajectory, poses or registration (exactly one; registration: ``--recording``, a registered
+    recording); scene: a scene-checkpoint (default: the one the trajectory names); rig: a rig file
+    (trajectory mode); humans: human-checkpoint ids."""
 
     trajectory: str | None = None
     poses: str | None = None
     scene: str | None = None
     rig: Path | None = None
     humans: tuple[str, ...] = ()
+    registration: str | None = None
 
     def ids(self) -> dict[str, str]:
         out = {}
@@ -123,6 +154,8 @@ class Inputs:
             out["trajectory"] = self.trajectory
         if self.poses:
             out["poses"] = self.poses
+        if self.registration:
+            out["registration"] = self.registration
         if self.scene:
             out["scene"] = self.scene
         for k, h in enumerate(self.humans):
@@ -142,8 +175,10 @@ class Outputs:
 def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     """Artifact ids resolved and checked (kinds, the scene checkpoint's presence)."""
     store = ctx.store
-    if (inputs.trajectory is None) == (inputs.poses is None):
-        raise InputError("render: give exactly one of --trajectory or --poses")
+    if sum(x is not None for x in (inputs.trajectory, inputs.poses, inputs.registration)) != 1:
+        raise InputError("render: give exactly one of --trajectory, --poses or --recording")
+    if inputs.registration is not None:
+        return resolve_recording_inputs(inputs, ctx)
     traj = poses = None
     if inputs.trajectory is not None:
         traj = store.resolve(inputs.trajectory, kind="trajectory")
@@ -169,6 +204,37 @@ def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
         scene = store.resolve(scene, kind="scene-checkpoint")
     humans = tuple(store.resolve(h, kind="human-checkpoint") for h in inputs.humans)
     return Inputs(trajectory=traj, poses=poses, scene=scene, rig=inputs.rig, humans=humans)
+
+
+def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
+    """Recording mode: a registration (its recording present), a metric scene checkpoint, no people."""
+    store = ctx.store
+    reg = store.resolve(inputs.registration)
+    kind = store.get(reg).kind
+    if kind != "registration":
+        raise InputError(f"--recording {inputs.registration}: a {kind} artifact; render --recording needs a "
+                         "registration artifact (nsim register-log)")
+    rec = store.get(reg).manifest.get("inputs", {}).get("recording")
+    if rec is None or not (store.root / "objects" / rec[:2] / rec).is_dir():
+        raise InputError(f"--recording {inputs.registration}: its recording {str(rec)[:12]} is missing from the "
+                         f"workspace {store.root} (import it again with nsim import-log)")
+    if inputs.humans:
+        raise InputError("render --recording: --humans is not supported (people are drawn from a simulated run's "
+                         "ticks; a recording has no such run)")
+    if inputs.rig is not None:
+        raise InputError(f"render --recording: --rig {inputs.rig}: a recording renders its own recorded sensors")
+    if inputs.scene is None:
+        raise InputError("render --recording: pass --scene (a scene-checkpoint artifact of the registration's world)")
+    scene = store.resolve(inputs.scene, kind="scene-checkpoint")
+    if not _scene_is_metric(ctx, scene):
+        raise InputError(f"--scene {inputs.scene}: the scene's scale is arbitrary (trained on poses without a metric "
+                         "scale); a registered recording lives in a metric world")
+    trained_on = store.get(scene).manifest.get("inputs", {}).get("poses")
+    registered_to = store.get(reg).manifest.get("inputs", {}).get("poses")
+    if trained_on and registered_to and trained_on != registered_to:
+        log.warning("render --recording: scene %s was trained on poses %s, the recording registered to poses %s: "
+                    "their worlds must agree", scene[:12], trained_on[:12], registered_to[:12])
+    return Inputs(scene=scene, registration=reg)
 
 
 def load_rig_for(inputs: Inputs, cfg: Config):
@@ -248,13 +314,90 @@ def plan_frames(inputs: Inputs, cfg: Config, ctx: RunContext) -> list[dict[str, 
     return frames
 
 
+def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Recording mode: the frames to render (``{stream, index, stamp_ns, odom_time_ns, body_to_world,
+    sensor_to_world}``, stream by stream) and the streams (``{key, kind, name, sensor_to_body, camera,
+    color, skipped_outside_trajectory}``). Every check before any rendering."""
+    import cv2
+
+    from nsim.io.tum import read_tum
+    from nsim.rendering import recording as core
+    from nsim.workspace.store import safe_relpath
+
+    if cfg.image_scale != 1.0 or cfg.lidar_azimuth_scale != 1.0:
+        raise InputError(f"render --recording: image_scale {cfg.image_scale:g}, lidar_azimuth_scale "
+                         f"{cfg.lidar_azimuth_scale:g}: a recording renders at its recorded sizes and points, so "
+                         "that sim and real frames pair one to one; set both to 1")
+    if bad := [k for k in cfg.camera_clock_kinds if k not in core.KINDS]:
+        raise InputError(f"camera_clock_kinds: {', '.join(map(repr, bad))} is not a stream kind "
+                         f"({', '.join(core.KINDS)})")
+    store = ctx.store
+    reg = store.get(inputs.registration)
+    reg_doc = json.loads(reg.file("registration.json").read_text())
+    traj_ns = np.load(reg.file("trajectory_world_ns.npy"), allow_pickle=False)
+    body_to_world = read_tum(reg.file("trajectory_world.tum")).poses_se3()
+    if len(traj_ns) != len(body_to_world) or len(traj_ns) < 1 or np.any(np.diff(traj_ns) <= 0):
+        raise InputError(f"registration {reg.id[:12]}: trajectory_world_ns.npy and trajectory_world.tum disagree, "
+                         "are empty or not increasing")
+    offset_s = reg_doc.get("clock_offset_s")
+    if not isinstance(offset_s, (int, float)) or not math.isfinite(offset_s):
+        raise InputError(f"registration {reg.id[:12]}: registration.json has no finite clock_offset_s")
+    if abs(float(reg_doc.get("scale", 1.0)) - 1.0) > 0.01:
+        log.warning("render --recording: registration %s has scale %g: the sensors' mounts stay in metres",
+                    reg.id[:12], reg_doc["scale"])
+    rec = store.get(reg.manifest["inputs"]["recording"])
+    doc = json.loads(rec.file("recording.json").read_text())
+    try:
+        keys = core.select_streams(list(doc["streams"]), cfg.sensors)
+    except ValueError as e:
+        raise InputError(f"sensors: recording {rec.id[:12]} has no stream {e} (it has: "
+                         f"{', '.join(doc['streams'])})") from None
+    frames, streams = [], []
+    for key in keys:
+        entry = doc["streams"][key]
+        kind, name = key.split("/", 1)
+        if kind not in core.KINDS or entry.get("dir") != key or not safe_relpath(key) or "/" in name:
+            raise InputError(f"recording {rec.id[:12]}: recording.json: stream {key!r} is not <kind>/<name> "
+                             f"(kinds: {', '.join(core.KINDS)}) kept in its own folder")
+        stamps = np.load(rec.file(f"{entry['dir']}/stamps_ns.npy"), allow_pickle=False)
+        indices = np.asarray(entry["frames"], dtype=np.int64)
+        if stamps.shape != indices.shape:
+            raise InputError(f"recording {rec.id[:12]}: {key}: {len(stamps)} stamps for {len(indices)} frames")
+        pick = core.select_frames(indices, cfg.start, cfg.tick_stride)
+        mount = np.asarray(entry["sensor_to_body"], dtype=np.float64)
+        odom = core.odometry_time_ns(stamps[pick], offset_s, kind in cfg.camera_clock_kinds)
+        inside, body, sensor = core.sensor_poses(odom, traj_ns, body_to_world, mount)
+        rows = [{"stream": key, "index": int(indices[p]), "stamp_ns": int(stamps[p]), "odom_time_ns": int(t),
+                 "body_to_world": b.tolist(), "sensor_to_world": w.tolist()}
+                for p, t, b, w, ok in zip(pick, odom, body, sensor, inside, strict=True) if ok]
+        frames += rows[: cfg.max_frames]
+        info = {"key": key, "kind": kind, "name": name, "sensor_to_body": mount.tolist(), "dir": entry["dir"],
+                "skipped_outside_trajectory": int((~inside).sum()), "camera": entry.get("camera"), "color": "rgb"}
+        if kind == "camera" and len(indices):
+            first = cv2.imread(str(rec.file(f"{entry['dir']}/{indices[0]:06d}.png")), cv2.IMREAD_UNCHANGED)
+            if first is None:
+                raise InputError(f"recording {rec.id[:12]}: {entry['dir']}/{indices[0]:06d}.png is not a readable image")
+            info["color"] = "gray" if first.ndim == 2 else "rgb"
+        if kind != "lidar" and info["camera"] is None:
+            raise InputError(f"recording {rec.id[:12]}: {key} has no camera model")
+        streams.append(info)
+        if info["skipped_outside_trajectory"]:
+            log.warning("render --recording: %s: %d of %d frames lie outside the registered trajectory; skipped",
+                        key, info["skipped_outside_trajectory"], len(pick))
+    if not frames:
+        raise InputError(f"render --recording: no frames selected in {', '.join(keys)} (check start / tick_stride / "
+                         "max_frames, and that the frames lie inside the registered trajectory)")
+    return frames, streams
+
+
 def shards_of(frames: list[dict], cfg: Config) -> list[list[dict]]:
     return [frames[a : a + cfg.shard_frames] for a in range(0, len(frames), cfg.shard_frames)]
 
 
 def shard_key(key: str, shard: list[dict]) -> str:
     first, last = shard[0]["index"], shard[-1]["index"]
-    digest = hashlib.sha256(f"{key}:{[f['index'] for f in shard]}".encode()).hexdigest()[:16]
+    ids = [f["index"] if "stream" not in f else (f["stream"], f["index"]) for f in shard]  # recording: per stream
+    digest = hashlib.sha256(f"{key}:{ids}".encode()).hexdigest()[:16]
     return f"shard_{first:06d}_{last:06d}_{digest}"
 
 
@@ -271,7 +414,11 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(render=hit.id, cache_hit=True)
 
-    frames = plan_frames(inputs, cfg, ctx)
+    streams = None
+    if inputs.registration is not None:
+        frames, streams = plan_recording(inputs, cfg, ctx)
+    else:
+        frames = plan_frames(inputs, cfg, ctx)
     shards = shards_of(frames, cfg)
     shard_root = store.root / "tmp" / f"{STAGE}.{key[:24]}.shards"
     shard_root.mkdir(parents=True, exist_ok=True)
@@ -283,6 +430,9 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
         "human_dirs": [str(store.get(h).path) for h in inputs.humans],
         "trajectory_file": str(store.get(inputs.trajectory).file("trajectory.npz")) if inputs.trajectory else None,
         "rig": rig.to_dict() if rig is not None else None,
+        "recording_dir": (str(store.get(store.get(inputs.registration).manifest["inputs"]["recording"]).path)
+                          if inputs.registration else None),
+        "streams": streams,
         "config": to_dict(cfg),
         "seed": ctx.seed,
         "device": str(ctx.device),
@@ -295,7 +445,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
                       progress=ctx.show_progress)
     with store.publish(kind="render", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
                        seed=ctx.seed) as out:
-        summary = assemble(out.dir, inputs, cfg, rig, frames, [done[i] for i in range(len(shards))], ctx)
+        summary = assemble(out.dir, inputs, cfg, rig, frames, [done[i] for i in range(len(shards))], ctx,
+                           streams=streams, recording_dir=job["recording_dir"])
         out.summary.update(summary)
     shutil.rmtree(shard_root, ignore_errors=True)
     return Outputs(render=out.ref, shards_rendered=len(shards) - present, shards_reused=present)
@@ -309,7 +460,8 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     ctx.force = True
     inputs = Inputs(trajectory=ids.get("trajectory"), poses=ids.get("poses"), scene=ids.get("scene"),
                     rig=Path(rig_file) if rig_file else None,
-                    humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")))
+                    humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")),
+                    registration=ids.get("registration"))
     return run(inputs, cfg, ctx).render
 
 
@@ -345,6 +497,9 @@ class ShardRenderer:
 
             self.rig = Rig.from_resolved(job["rig"])
         self.humans = HumanSet.load(job["human_dirs"], job["trajectory_file"], self.device) if job["human_dirs"] else None
+        self.streams = {}  # recording mode: stream key -> its CameraSensor (camera, depth) or None (LiDAR)
+        for st in job.get("streams") or ():
+            self.streams[st["key"]] = _stream_sensor(st)
 
     # -- rays -> samples -> outputs
     def _render_rays(self, origins: np.ndarray, dirs: np.ndarray, valid: np.ndarray, near: float, far: float,
@@ -388,7 +543,9 @@ class ShardRenderer:
         out_dir = Path(out_dir)
         stats = []
         for frame in self.job["shards"][shard]:
-            if self.rig is not None:
+            if "stream" in frame:
+                stats.append(self._render_recording_frame(frame, out_dir))
+            elif self.rig is not None:
                 stats.append(self._render_tick(frame, out_dir))
             else:
                 stats.append(self._render_pose_frame(frame, out_dir))
@@ -435,6 +592,43 @@ class ShardRenderer:
         z = np.where(dirs_cam[:, 2] > 1e-9, res["range"] * dirs_cam[:, 2], np.nan).reshape(h, w)
         write_depth_exr(out_dir / "frames" / "depth" / f"{i:06d}.exr", z, attributes={"nsim_depth": DEPTH_ATTRIBUTE["z"]})
         return {"index": i, "frames": {"mean_accumulation": float(np.mean(res["acc"]))}}
+
+    def _render_recording_frame(self, frame: dict, out_dir: Path) -> dict:
+        """One frame of one recorded stream, written where the recording keeps it (module docstring)."""
+        from nsim.io.exr import write_depth_exr, write_points_exr
+        from nsim.io.images import to_uint8, write_image
+
+        key, i = frame["stream"], frame["index"]
+        kind, name = key.split("/", 1)
+        path = out_dir / kind / name / f"{i:06d}"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        s = self.streams[key]
+        if kind == "lidar":
+            from nsim.io.exr import read_points_exr
+            from nsim.rendering.recording import point_directions, points_from_ranges
+
+            rec = read_points_exr(Path(self.job["recording_dir"]) / kind / name / f"{i:06d}.exr")
+            xyz_rec = np.stack([rec[c].reshape(-1) for c in "XYZ"], axis=-1)
+            dirs, valid = point_directions(xyz_rec)
+            pose = np.asarray(frame["sensor_to_world"], dtype=np.float64)
+            o = np.broadcast_to(pose[:3, 3], dirs.shape)
+            res = self._render_rays(o, dirs @ pose[:3, :3].T, valid, 0.0, float("inf"), i)
+            xyz = points_from_ranges(dirs, res["range"]).astype(np.float32)
+            write_points_exr(path.with_suffix(".exr"), {"X": xyz[None, :, 0], "Y": xyz[None, :, 1], "Z": xyz[None, :, 2],
+                                                         "range": res["range"].astype(np.float32)[None, :]})
+            return {"stream": key, "index": i, "points": len(xyz), "returns": int(np.isfinite(res["range"]).sum())}
+        body = np.asarray(frame["body_to_world"], dtype=np.float64)
+        o, d = s.rays(body)
+        valid = np.isfinite(d).all(-1)
+        res = self._render_rays(o, d, valid, 0.0, float("inf"), i, s.camera, s.world_pose(body))
+        h, w = s.ray_shape
+        if kind == "camera":
+            write_image(path.with_suffix(".png"), to_uint8(s.expose(res["rgb"].reshape(h, w, 3))))
+            return {"stream": key, "index": i, "mean_accumulation": float(np.mean(res["acc"]))}
+        depth = s.depth_from_range(res["range"].reshape(h, w)).astype(np.float32)  # inf stays inf, NaN stays NaN
+        write_depth_exr(path.with_suffix(".exr"), depth, attributes={"nsim_depth": DEPTH_ATTRIBUTE["z"],
+                                                                     "nsim_sensor": name})
+        return {"stream": key, "index": i, "valid_depth_fraction": float(np.isfinite(depth).mean())}
 
     def _write_camera(self, out_dir: Path, name: str, i: int, s, res: dict) -> dict:
         from nsim.io.exr import write_depth_exr, write_rgb_exr
@@ -490,6 +684,20 @@ class ShardRenderer:
         write_lidar_exr(out_dir / s.name / "scan" / f"{i:06d}.exr", scan, sensor=s.name, elevations_deg=s.elevations_deg)
         write_lidar_ply(out_dir / s.name / "scan" / f"{i:06d}.ply", scan)
         return {"returns": int(np.isfinite(ranges).sum())}
+
+
+def _stream_sensor(stream: dict[str, Any]):
+    """A recorded camera or depth stream as the rig's ``CameraSensor`` (its rays, grey conversion and
+    z-depth are the rig's); None for a LiDAR stream (its rays are its recorded points)."""
+    from nsim.geometry import Camera
+    from nsim.sensors.depth import DepthConfig
+    from nsim.sensors.rig import CameraSensor
+
+    if stream["kind"] == "lidar":
+        return None
+    return CameraSensor(name=stream["name"], sensor_to_body=np.asarray(stream["sensor_to_body"], dtype=np.float64),
+                        camera=Camera.from_dict(stream["camera"]), kind=stream["kind"], color=stream["color"],
+                        depth=DepthConfig(kind="z") if stream["kind"] == "depth" else None)
 
 
 # ---------------------------------------------------------------------------------- humans
@@ -637,17 +845,21 @@ class HumanSet:
 
 
 # ---------------------------------------------------------------------------------- assembling the artifact
+def _scene_is_metric(ctx: RunContext, scene: str) -> bool:
+    """False when the scene was trained on poses of arbitrary scale (its scene.json says ``metric: false``)."""
+    doc = json.loads(ctx.store.get(scene).file("scene.json").read_text())
+    return doc.get("extra", doc).get("metric", True) is not False
+
+
 def _world_units(ctx: RunContext, scene: str | None) -> str:
     """What the world's lengths are: metres, unless the scene was trained on poses of arbitrary scale."""
-    if scene is not None:
-        doc = json.loads(ctx.store.get(scene).file("scene.json").read_text())
-        if doc.get("extra", doc).get("metric", True) is False:
-            return "arbitrary units (the poses had no metric scale; see scene.json units_per_m), z up"
+    if scene is not None and not _scene_is_metric(ctx, scene):
+        return "arbitrary units (the poses had no metric scale; see scene.json units_per_m), z up"
     return "metres, z up"
 
 
 def assemble(out_dir: Path, inputs: Inputs, cfg: Config, rig, frames: list[dict], shard_dirs: list[Path],
-             ctx: RunContext) -> dict[str, Any]:
+             ctx: RunContext, streams: list[dict] | None = None, recording_dir: str | None = None) -> dict[str, Any]:
     """Hard-link every shard's files into the artifact, then write the frame-level files."""
     rows: list[dict] = []
     for sd in shard_dirs:
@@ -660,6 +872,8 @@ def assemble(out_dir: Path, inputs: Inputs, cfg: Config, rig, frames: list[dict]
                 except OSError:
                     shutil.copyfile(src, dst)
         rows += json.loads((Path(sd) / "frames.json").read_text())
+    if streams is not None:
+        return _assemble_recording(out_dir, inputs, cfg, frames, streams, rows, Path(recording_dir), ctx)
     meta: dict[str, Any] = {
         "mode": "trajectory" if inputs.trajectory else "poses",
         "scene": inputs.scene,
@@ -707,17 +921,104 @@ def assemble(out_dir: Path, inputs: Inputs, cfg: Config, rig, frames: list[dict]
     return summary
 
 
+def _assemble_recording(out_dir: Path, inputs: Inputs, cfg: Config, frames: list[dict], streams: list[dict],
+                        rows: list[dict], recording_dir: Path, ctx: RunContext) -> dict[str, Any]:
+    """Recording mode's render.json (the contract in the module docstring) and previews."""
+    recording = ctx.store.get(inputs.registration).manifest["inputs"]["recording"]
+    per_stream = []
+    for st in streams:
+        mine = [f for f in frames if f["stream"] == st["key"]]
+        per_stream.append({"name": st["name"], "kind": st["kind"], "color": st["color"],
+                           "skipped_outside_trajectory": st["skipped_outside_trajectory"],
+                           "frames": [{k: f[k] for k in ("index", "stamp_ns", "odom_time_ns", "sensor_to_world")}
+                                      for f in mine]})
+    meta: dict[str, Any] = {
+        "mode": "recording",
+        "recording": recording,
+        "registration": inputs.registration,
+        "scene": inputs.scene,
+        "streams": per_stream,
+        "conventions": {
+            "world": _world_units(ctx, inputs.scene),
+            "time": "stamp_ns: the recorded header stamp; odom_time_ns: the same instant on the odometry clock "
+                    "(stamp - clock_offset_s for the kinds in camera_clock_kinds), where the registration's "
+                    "trajectory was interpolated",
+            "sensor_to_world": "4 x 4, the sensor's frame (cameras: OpenCV axes; LiDAR: the recording's) in the world",
+            "camera": "camera/<name>/NNNNNN.png, 8-bit sRGB, grey where the recording's stream is grey",
+            "depth": "depth/<name>/NNNNNN.exr, float32 channel Z: z-depth in metres; inf = no return, NaN = invalid",
+            "lidar": "lidar/<name>/NNNNNN.exr, one row of the recorded file's points in its order: X Y Z (sensor "
+                     "frame, metres, NaN without a return), range (metres along the recorded point's direction; "
+                     "inf = no return, NaN = the recorded point gives no direction)",
+            "index": "NNNNNN and index: the recording's own frame index",
+        },
+        "per_frame": rows,
+    }
+    (out_dir / "render.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
+    by_stream = {st["key"]: [f["index"] for f in frames if f["stream"] == st["key"]] for st in streams}
+    n = max(len(v) for v in by_stream.values())
+    picked = [{"row": r} for r in range(n)]
+    write_previews(out_dir, None, picked, cfg,
+                   strip=lambda row: _recording_strip(out_dir, recording_dir, streams, by_stream, row["row"]))
+    return {"mode": "recording", "frames": len(frames), "humans": 0,
+            "streams": {st["key"]: len(by_stream[st["key"]]) for st in streams},
+            "skipped_outside_trajectory": sum(st["skipped_outside_trajectory"] for st in streams)}
+
+
+def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by_stream: dict[str, list[int]],
+                     row: int, height: int = 160) -> np.ndarray:
+    """Row ``row`` of the contact sheet: per camera stream its ``row``-th frame, recorded beside rendered;
+    per LiDAR stream a view from above, the recorded points grey under the rendered ones."""
+    import cv2
+
+    from nsim.io.exr import read_points_exr
+    from nsim.io.images import read_image
+
+    def tile(path: Path) -> np.ndarray:
+        im = read_image(path)
+        if im.dtype == np.uint16:
+            im = (im >> 8).astype(np.uint8)
+        if im.ndim == 2:
+            im = np.repeat(im[..., None], 3, -1)
+        return cv2.resize(im, (max(1, round(im.shape[1] * height / im.shape[0])), height), interpolation=cv2.INTER_AREA)
+
+    tiles = []
+    for st in streams:
+        if row >= len(by_stream[st["key"]]) or st["kind"] == "depth":
+            continue
+        rel = f"{st['kind']}/{st['name']}/{by_stream[st['key']][row]:06d}"
+        if st["kind"] == "camera":
+            tiles += [tile(recording_dir / f"{rel}.png"), tile(out_dir / f"{rel}.png")]
+        else:
+            def xyz(path: Path) -> np.ndarray:
+                p = read_points_exr(path)
+                return np.stack([p[c].reshape(-1) for c in "XYZ"], -1)
+
+            img = _bev_points(xyz(recording_dir / f"{rel}.exr"), colour=(110, 110, 110))
+            img = _bev_points(xyz(out_dir / f"{rel}.exr"), img=img)
+            tiles.append(cv2.resize(img, (height, height), interpolation=cv2.INTER_NEAREST))
+    return np.concatenate(tiles, axis=1) if tiles else np.zeros((height, height, 3), np.uint8)
+
+
 def _bev(scan_path: Path, size: int = 240, extent_m: float = 10.0) -> np.ndarray:
     from nsim.io.lidar_exr import read_lidar_exr
 
     scan = read_lidar_exr(scan_path)
-    img = np.full((size, size, 3), 16, np.uint8)
-    xyz = scan.xyz_m[scan.hit]
+    return _bev_points(scan.xyz_m[scan.hit], size=size, extent_m=extent_m)
+
+
+def _bev_points(xyz: np.ndarray, img: np.ndarray | None = None, colour=None, size: int = 240,
+                extent_m: float = 10.0) -> np.ndarray:
+    """LiDAR points ``(N, 3)`` (sensor frame; non-finite rows dropped) from above, x up: coloured by height,
+    or in one ``colour``, drawn over ``img`` (default: a dark square)."""
+    if img is None:
+        img = np.full((size, size, 3), 16, np.uint8)
+    xyz = np.asarray(xyz)[np.isfinite(xyz).all(-1)]
     u = (size / 2 - xyz[:, 1] / extent_m * size / 2).astype(int)
     v = (size / 2 - xyz[:, 0] / extent_m * size / 2).astype(int)
     ok = (u >= 0) & (u < size) & (v >= 0) & (v < size)
     z = np.clip((xyz[ok, 2] + 1.0) / 3.0, 0, 1)
-    img[v[ok], u[ok]] = np.stack([255 * z, 255 * (1 - abs(z - 0.5) * 2), 255 * (1 - z)], -1).astype(np.uint8)
+    img[v[ok], u[ok]] = (np.stack([255 * z, 255 * (1 - abs(z - 0.5) * 2), 255 * (1 - z)], -1).astype(np.uint8)
+                         if colour is None else colour)
     img[size // 2 - 2 : size // 2 + 2, size // 2 - 2 : size // 2 + 2] = (255, 255, 255)
     return img
 
@@ -745,28 +1046,33 @@ def _frame_strip(out_dir: Path, rig, index: int, height: int = 160) -> np.ndarra
     return np.concatenate(tiles, axis=1) if tiles else np.zeros((height, height, 3), np.uint8)
 
 
-def write_previews(out_dir: Path, rig, frames: list[dict], cfg: Config) -> None:
+def write_previews(out_dir: Path, rig, frames: list[dict], cfg: Config, strip=None) -> None:
+    """The contact sheet (and video) of ``frames``; ``strip(frame) -> (H, W, 3) uint8`` draws one row
+    (default: the rig's cameras and LiDAR BEVs at the frame's index)."""
     from nsim.io.images import write_image
 
+    if strip is None:
+        def strip(f: dict) -> np.ndarray:
+            return _frame_strip(out_dir, rig, f["index"])
     (out_dir / "preview").mkdir()
     picked = frames[:: cfg.preview_every][: cfg.preview_max_rows]
-    strips = [_frame_strip(out_dir, rig, f["index"]) for f in picked]
+    strips = [strip(f) for f in picked]
     width = max(s.shape[1] for s in strips)
     sheet = np.concatenate([np.pad(s, ((0, 2), (0, width - s.shape[1]), (0, 0))) for s in strips], axis=0)
     write_image(out_dir / "preview" / "contact_sheet.png", sheet)
     if cfg.video and len(frames) > 1:
         import cv2
 
-        first = _frame_strip(out_dir, rig, frames[0]["index"])
+        first = strip(frames[0])
         h, w = first.shape[:2]
         path = out_dir / "preview" / "preview.mp4"
         writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), cfg.video_fps, (w, h))
         try:
             for f in frames:
-                strip = first if f is frames[0] else _frame_strip(out_dir, rig, f["index"])
-                if strip.shape[:2] != (h, w):
-                    strip = cv2.resize(strip, (w, h))
-                writer.write(cv2.cvtColor(strip, cv2.COLOR_RGB2BGR))
+                row = first if f is frames[0] else strip(f)
+                if row.shape[:2] != (h, w):
+                    row = cv2.resize(row, (w, h))
+                writer.write(cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
         finally:
             writer.release()
 

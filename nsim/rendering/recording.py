@@ -1,0 +1,101 @@
+"""A registered recording's sensors, frame by frame: which frames, each one's world pose, its rays.
+
+The core of ``nsim render --recording`` (arrays in, arrays out; the stage reads the artifacts).
+A ``recording`` (``nsim import-log``) holds streams of kind ``camera``, ``depth`` or ``lidar``,
+each with its ``sensor_to_body (4, 4)`` and its frames' header stamps (int64 ns); a
+``registration`` (``nsim register-log``) holds ``body_to_world (T, 4, 4)`` at odometry stamps
+``traj_ns (T,)`` and the cameras' ``clock_offset_s``.
+
+Clocks (the convention of ``nsim.sfm.register``): ``clock_offset_s`` is the cameras' clock minus
+the odometry's, so a frame stamped ``s`` on the cameras' clock was captured at odometry time
+``s - clock_offset_s``. Which streams run on the cameras' clock is the caller's choice (by kind):
+in nsim's robot log (``nsim.synth.robot_log``) only the colour frames do; depth and LiDAR are
+stamped on the odometry's clock. Odometry times stay int64 nanoseconds; poses are interpolated
+(``nsim.crowd.scenario.interpolate_poses``: positions linearly, rotations slerped) in seconds
+from the trajectory's first stamp, so the epoch's magnitude costs no precision. A frame whose
+odometry time lies outside ``[traj_ns[0], traj_ns[-1]]`` has no pose: it is not extrapolated.
+
+LiDAR: one simulated ray per recorded point, from the sensor's origin along the point's direction
+(``point_directions``); the simulated return lies on that ray (``points_from_ranges``), so sim and
+real ranges pair point for point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+KINDS = ("camera", "depth", "lidar")
+
+
+def odometry_time_ns(stamps_ns: np.ndarray, clock_offset_s: float, on_camera_clock: bool) -> np.ndarray:
+    """Odometry times ``(N,)`` int64 ns of frames stamped ``stamps_ns (N,)``: ``stamps - round(clock_offset_s
+    * 1e9)`` for a stream on the cameras' clock, the stamps themselves otherwise."""
+    stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    if not on_camera_clock:
+        return stamps.copy()
+    return stamps - np.int64(int(round(float(clock_offset_s) * 1e9)))
+
+
+def sensor_poses(odom_ns: np.ndarray, traj_ns: np.ndarray, body_to_world: np.ndarray,
+                 sensor_to_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sensor's world poses at odometry times ``odom_ns (N,)`` int64.
+
+    traj_ns: ``(T,)`` int64 increasing, ``T >= 1``; body_to_world: ``(T, 4, 4)``; sensor_to_body:
+    ``(4, 4)``. Returns ``inside (N,)`` bool (the time lies within the trajectory's span),
+    ``body_to_world (N, 4, 4)`` and ``sensor_to_world (N, 4, 4) = body_to_world @ sensor_to_body``,
+    both NaN where not ``inside``.
+    """
+    from nsim.crowd.scenario import interpolate_poses
+
+    odom = np.asarray(odom_ns, dtype=np.int64).reshape(-1)
+    traj = np.asarray(traj_ns, dtype=np.int64).reshape(-1)
+    poses = np.asarray(body_to_world, dtype=np.float64)
+    if poses.shape != (len(traj), 4, 4) or len(traj) == 0:
+        raise ValueError(f"body_to_world: expected shape ({len(traj)}, 4, 4) with a pose per stamp, got {poses.shape}")
+    if np.any(np.diff(traj) <= 0):
+        raise ValueError("traj_ns: expected strictly increasing stamps")
+    inside = (odom >= traj[0]) & (odom <= traj[-1])
+    body = np.full((len(odom), 4, 4), np.nan)
+    if inside.any():
+        t0 = traj[0]
+        body[inside] = interpolate_poses((traj - t0) / 1e9, poses, (odom[inside] - t0) / 1e9)
+    sensor = body @ np.asarray(sensor_to_body, dtype=np.float64)
+    return inside, body, sensor
+
+
+def select_frames(indices: np.ndarray, start: int, stride: int) -> np.ndarray:
+    """Positions ``(M,)`` into a stream's kept frame ``indices (N,)``: those with index ``>= start``, then
+    every ``stride``-th of them."""
+    idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+    return np.flatnonzero(idx >= start)[::stride]
+
+
+def select_streams(available: list[str], wanted: tuple[str, ...] | list[str]) -> list[str]:
+    """The streams ``<kind>/<name>`` of ``available`` that ``wanted`` names (empty: all), in ``available``'s
+    order. A wanted entry is a ``<kind>/<name>`` key or a bare ``<name>`` (every kind of that name).
+    Raises ValueError naming the entries that match nothing."""
+    if not wanted:
+        return list(available)
+    names = {k.split("/", 1)[1] for k in available}
+    unknown = [w for w in wanted if w not in available and w not in names]
+    if unknown:
+        raise ValueError(", ".join(map(repr, unknown)))
+    return [k for k in available if k in wanted or k.split("/", 1)[1] in wanted]
+
+
+def point_directions(xyz_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions ``(N, 3)`` from the sensor's origin to points ``xyz_m (N, 3)`` (sensor frame) and
+    ``valid (N,)``: the point is finite and not at the origin. Invalid rows get ``(1, 0, 0)``."""
+    xyz = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+    norm = np.linalg.norm(xyz, axis=-1)
+    valid = np.isfinite(norm) & (norm > 1e-9)
+    dirs = np.where(valid[:, None], xyz / np.where(valid, norm, 1.0)[:, None], [1.0, 0.0, 0.0])
+    return dirs, valid
+
+
+def points_from_ranges(dirs: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Points ``(N, 3)`` at ``range_m (N,)`` along unit ``dirs (N, 3)``; NaN where the range is not finite
+    (inf: no return, NaN: no valid ray)."""
+    r = np.asarray(range_m, dtype=np.float64).reshape(-1)
+    hit = np.isfinite(r)
+    return np.where(hit[:, None], np.asarray(dirs, dtype=np.float64) * np.where(hit, r, 0.0)[:, None], np.nan)
