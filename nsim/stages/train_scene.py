@@ -4,6 +4,18 @@ Input: a ``poses`` artifact from ``nsim reconstruct`` (its frames, metric poses 
 points) or a ``capture`` artifact (ground-truth poses; the bench and tests use it). Frame ``i``
 is held out for evaluation when ``i % data.holdout_every == 0``.
 
+A robot's own frames (``--recording``, a ``registration`` artifact of ``nsim register-log`` made
+against the same poses artifact): its recording's colour camera frames become extra training
+views, with their recorded camera models, at their registered world poses
+(``nsim.train.scene_data``: ``read_recorded_frames``, ``split_recorded_frames``,
+``SceneData.with_recorded_frames``). ``Inputs.recording`` (``RecordingConfig``) says which: a
+``share`` of the training views, and a fixed hold-out (every ``holdout_every``-th frame of each
+camera) that never trains. ``scene.json``'s ``recording`` key records the rule, the counts (frames
+outside the registered trajectory dropped), the frames that trained (their ``image`` index in
+``images``: after the capture's) and the held-out frames for scoring. The registration and the
+options enter the action key only when given: without them the key, and the artifact, are what
+they were.
+
 Artifact layout (see ``nsim.train.scene.export_scene``)::
 
     model.pt, scene.json       weights + everything that rebuilds the model (configs, scene box,
@@ -36,20 +48,24 @@ different artifact from a CPU run.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import shutil
 from typing import Any
 
-from nsim.config import from_dict
+from nsim.config import from_dict, to_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.train.scene import TrainSceneConfig
+from nsim.train.scene_data import RecordingConfig
+from nsim.workspace.store import is_id
 
 STAGE = "train_scene"
 # 2: scene.json keeps the training images' mean colour (image_mean_rgb, for nsim render's fill);
 # 3: shrunk training images, scoring at eval.image_side with LPIPS and the half-image protocol, scale record
 # 4: the walkable map from the training rays (hits, carved haze; obstacle_density 1/m), depth/mask supervision keys
-VERSION = 5
+# 6: the walkable map's rays followed only near the band, depth maps sized by pixel count (portrait photos)
+VERSION = 6
 
 log = logging.getLogger(__name__)
 
@@ -59,12 +75,17 @@ ACCEPTED_KINDS = ("poses", "capture")
 
 @dataclasses.dataclass(frozen=True)
 class Inputs:
-    """``poses``: a poses artifact id (or a capture artifact id: ground-truth poses)."""
+    """``poses``: a poses artifact id (or a capture artifact id: ground-truth poses). ``registration``: a
+    registration artifact (``nsim register-log`` against ``poses``) whose recording's frames also train,
+    as ``recording`` says (ignored without a registration)."""
 
     poses: str
+    registration: str | None = None
+    recording: RecordingConfig = RecordingConfig()
 
     def ids(self) -> dict[str, str]:
-        return {"poses": self.poses}
+        return {"poses": self.poses} if self.registration is None else {"poses": self.poses,
+                                                                         "registration": self.registration}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,8 +102,30 @@ def device_kind(device: str) -> str:
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
-    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed,
-                                extra={"device": device_kind(ctx.device)})
+    extra: dict[str, Any] = {"device": device_kind(ctx.device)}
+    if inputs.registration is not None:
+        extra["recording"] = to_dict(inputs.recording)
+    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
+
+
+def resolve_registration(spec: str, poses_id: str, ctx: RunContext):
+    """The registration artifact ``spec`` and its recording, checked: the kinds, and a scene world that is the
+    poses artifact's (the registration was made against ``poses_id``)."""
+    store = ctx.store
+    reg = store.get(store.resolve(spec))
+    if reg.kind != "registration":
+        how = "; register it first (nsim register-log)" if reg.kind == "recording" else ""
+        raise InputError(f"--recording {spec}: a {reg.kind} artifact; train-scene needs a registration artifact "
+                         f"(nsim register-log){how}")
+    made_on = reg.manifest.get("inputs", {})
+    if made_on.get("poses") != poses_id:
+        raise InputError(f"--recording {spec}: registration {reg.id[:12]} places the robot in the world of poses "
+                         f"{str(made_on.get('poses'))[:12]}, not of --poses {poses_id[:12]}; register the recording "
+                         "against the poses you train on")
+    rec_id = made_on.get("recording")
+    if not isinstance(rec_id, str) or not is_id(rec_id):
+        raise InputError(f"--recording {spec}: registration {reg.id[:12]} names no recording artifact")
+    return reg, store.get(rec_id)  # WorkspaceError (one line) when it is not in the workspace
 
 
 def resume_dir(ctx: RunContext, key: str):
@@ -99,27 +142,68 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
     if src.kind not in ACCEPTED_KINDS:
         raise InputError(f"--poses {inputs.poses}: a {src.kind} artifact; train-scene needs a poses artifact "
                          "(nsim reconstruct) or a capture artifact")
-    inputs = Inputs(poses=src.id)
+    reg = rec = None
+    if inputs.registration is not None:
+        reg, rec = resolve_registration(inputs.registration, src.id, ctx)
+    inputs = dataclasses.replace(inputs, poses=src.id, registration=reg.id if reg is not None else None)
     key = action_key(inputs, cfg, ctx)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(scene=hit.id, cache_hit=True)
 
     data = SceneData.load(src.path, max_image_side=cfg.data.max_image_side, scale=cfg.data.scale)
+    record = None
+    if reg is not None:
+        data, record = add_recorded_frames(data, reg, rec, inputs.recording, cfg)
     device = ctx.device
     work = resume_dir(ctx, key)
     result = train_scene(data, cfg, work, device=device, seed=ctx.seed, progress=ctx.show_progress, on_log=on_log)
-    scene_id = publish(ctx, key, inputs, cfg, src.kind, data, result)
+    scene_id = publish(ctx, key, inputs, cfg, src.kind, data, result, record)
     shutil.rmtree(work, ignore_errors=True)
     return Outputs(scene=scene_id, train_seconds=result.trainer.train_seconds, resumed_from=result.resumed_from)
 
 
-def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind: str, data, result) -> str:
-    """Export a finished training (``nsim.train.scene.TrainResult``) as the artifact of ``key``."""
+def add_recorded_frames(data, reg, rec, opts: RecordingConfig, cfg: Config):
+    """``data`` with the registered recording's training frames appended, and scene.json's ``recording`` record."""
+    from nsim.train.scene_data import read_recorded_frames, recording_record, split_recorded_frames
+
+    label = f"--recording {reg.id[:12]}"
+    if not data.metric:
+        raise InputError(f"{label}: the poses' scale is arbitrary (data.scale); a robot's metric frames need a "
+                         "metric scene")
+    recorded = read_recorded_frames(reg.path, rec.path, opts.cameras, label)
+    capture_train = len(data.split(cfg.data.holdout_every)[0])
+    split = split_recorded_frames(recorded, capture_train, opts)
+    dropped = sum(recorded.outside.values())
+    if dropped:
+        log.warning("%s: %d of %d recorded frames lie outside the registered trajectory; dropped", label, dropped,
+                    sum(recorded.recorded.values()))
+    if not split.train:
+        raise InputError(f"{label}: no robot frame to train on (share {opts.share:g} of {capture_train} capture "
+                         f"training frames asks for {split.wanted}; {len(recorded.frames)} frames inside the "
+                         f"trajectory, {len(split.held_out)} of them held out)")
+    if len(split.train) < split.wanted:
+        log.warning("%s: share %g asks for %d robot frames, the recording has %d to train on: using them all",
+                    label, opts.share, split.wanted, len(split.train))
+    record = recording_record(recorded, split, opts, capture_train, data.n_frames, reg.id, rec.id)
+    return data.with_recorded_frames([recorded.frames[k] for k in split.train]), record
+
+
+def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind: str, data, result,
+            record: dict[str, Any] | None = None) -> str:
+    """Export a finished training (``nsim.train.scene.TrainResult``) as the artifact of ``key``; ``record``:
+    scene.json's ``recording`` key (robot frames trained)."""
     from nsim.train.scene import export_scene
 
     with ctx.store.publish(kind="scene-checkpoint", stage=STAGE, version=VERSION, key=key, config=cfg,
                            inputs=inputs.ids(), seed=ctx.seed) as out:
         summary = export_scene(out.dir, result)
+        if record is not None:
+            scene_json = out.dir / "scene.json"
+            scene_json.write_text(json.dumps({**json.loads(scene_json.read_text()), "recording": record}, indent=1)
+                                  + "\n")
+            summary = {**summary, "robot_train_frames": record["robot_train_frames"],
+                       "robot_held_out_frames": len(record["held_out"]),
+                       "robot_share_trained": round(record["share_trained"], 4)}
         out.summary.update({
             "source_kind": source_kind,
             "frames": data.n_frames,
@@ -141,5 +225,9 @@ def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind:
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     cfg = from_dict(Config, manifest["config"])
+    inputs = Inputs(poses=manifest["inputs"]["poses"], registration=manifest["inputs"].get("registration"))
+    if inputs.registration is not None:  # the options are scene.json's record
+        rec = json.loads(ctx.store.get(manifest["id"]).file("scene.json").read_text())["recording"]
+        inputs = dataclasses.replace(inputs, recording=from_dict(RecordingConfig, rec["options"]))
     ctx.force = True
-    return run(Inputs(poses=manifest["inputs"]["poses"]), cfg, ctx).scene
+    return run(inputs, cfg, ctx).scene

@@ -27,6 +27,23 @@ Scale. Poses from ``nsim reconstruct`` are metric unless its ``transforms.json``
 trainer's lengths (near plane, box margin, occupancy cells, obstacle band, ...) are metres; for an
 arbitrary-scale scene they are multiplied by :func:`units_per_metre`, a guess of how many scene
 units a metre is, taken from the scene's size against a room capture's (see there).
+
+A robot's own frames (``nsim train-scene --recording``, the paper's "a proportion of the real-world
+camera data in the training"). A ``registration`` (``nsim register-log``) places a ``recording``
+(``nsim import-log``) in the scene's world; :func:`read_recorded_frames` gives each camera frame its
+recorded camera model and its world pose ``body_to_world(stamp - clock_offset_s) @ sensor_to_body``
+(``nsim.rendering.recording``: the odometry clock, ``interpolate_poses``), dropping and counting the
+frames outside the registered trajectory's span. :func:`split_recorded_frames` holds out a fixed
+subset (:class:`RecordingConfig`) and picks the training share, evenly spaced;
+:meth:`SceneData.with_recorded_frames` appends those frames after the capture's. They are brought to
+the capture's training size exactly (:func:`fit_camera`): scaled uniformly (``Camera.scaled``) to
+cover it, then centre-cropped (the principal point moves by the crop), so one ``(N, H, W, 3)``
+array, one pixel-direction table and the obstacle map's views hold every camera model as it is.
+A recorded camera of another aspect ratio loses the strips outside the capture's; one smaller
+than it is enlarged (bilinear), which adds no detail but keeps every view's weight in the batch
+equal (the trainer draws pixels uniformly). Pixels a model cannot unproject are masked.
+Recorded frames always train: the capture's hold-out rule (``DataConfig.holdout_every``) applies
+to the capture's frames only, and held-out robot frames never enter ``SceneData``.
 """
 
 from __future__ import annotations
@@ -83,6 +100,31 @@ class DataConfig:
     aabb_max_m: tuple[float, float, float] | None = None
 
 
+SHARE_MEANING = ("the fraction of the training views that are robot frames: with T capture frames in training "
+                 "(after the capture's own hold-out), round(share / (1 - share) * T) robot frames are added (at most "
+                 "every candidate: a recorded frame inside the registered trajectory and not held out), shared among "
+                 "the cameras in proportion to their candidates (largest remainder), evenly spaced in each camera's")
+HELDOUT_MEANING = ("the frame at position j of its camera's recorded frames (recording.json's frames, 0-based, "
+                   "inside the trajectory or not) is held out when j % holdout_every == 0, whatever the share and "
+                   "the cameras; held-out frames never train (those inside the trajectory are listed for scoring)")
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """Which of a registered robot recording's camera frames train the scene (``nsim train-scene --recording``).
+
+    share: the fraction of the training views that are robot frames (``SHARE_MEANING``). Every training
+    image is at the capture's training size, so it is also the robots' share of the training rays.
+    holdout_every: the robot frames held out (``HELDOUT_MEANING``): fixed by the recording alone, so
+    runs at different shares are scored on the same frames. cameras: the recording's cameras whose
+    frames may train (empty: all); each must record colour.
+    """
+
+    share: float = param(0.25, gt=0.0, lt=1.0, help="fraction of the training views that are robot frames")
+    holdout_every: int = param(8, ge=2, help="hold out robot frame j (per camera) when j % holdout_every == 0")
+    cameras: tuple[str, ...] = param((), help="the recording's cameras that may train (empty: all)")
+
+
 def shrink_factor(width: int, height: int, max_side: int) -> float:
     """The factor that brings the longer side to ``max_side`` (1.0 when it is already no longer, or max_side is 0)."""
     longest = max(width, height)
@@ -102,6 +144,74 @@ def resize_image(image: np.ndarray, width: int, height: int) -> np.ndarray:
     import cv2
 
     return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def fit_geometry(camera, width: int, height: int):
+    """How an image of ``camera`` becomes ``width x height`` (:func:`fit_camera`): ``(scaled, x0, y0)``, the
+    camera scaled uniformly (``Camera.scaled``) so that its image covers the size, and the top-left
+    corner of the centred crop in that scaled image."""
+    if (camera.width, camera.height) == (width, height):
+        return camera, 0, 0
+    scaled = camera.scaled(max(width / camera.width, height / camera.height))
+    if scaled.width < width or scaled.height < height:  # cannot happen with round(); a guard on the arithmetic
+        raise ValueError(f"fit_geometry: {scaled.width}x{scaled.height} does not cover {width}x{height}")
+    return scaled, (scaled.width - width) // 2, (scaled.height - height) // 2
+
+
+def fit_camera(camera, width: int, height: int):
+    """``camera`` (``nsim.geometry.cameras.Camera``) for its image brought to exactly ``width x height``:
+    scaled uniformly to cover it (``Camera.scaled``: ``f' = f s``, ``c' = (c + 0.5) s - 0.5``), then
+    centre-cropped (``c'' = c' - (x0, y0)``). Exact for every model whose pixel is ``f x_d + c`` (pinhole,
+    OpenCV, fisheye); an equirectangular camera cannot be cropped (its centre follows its size)."""
+    scaled, x0, y0 = fit_geometry(camera, width, height)
+    if (scaled.width, scaled.height) == (width, height):
+        return scaled
+    if camera.model == "EQUIRECTANGULAR":
+        raise InputError(f"an equirectangular {camera.width}x{camera.height} camera cannot be cropped to "
+                         f"{width}x{height} (its principal point follows its size)")
+    from dataclasses import replace
+
+    return replace(scaled, width=width, height=height, cx=scaled.cx - x0, cy=scaled.cy - y0)
+
+
+def fit_image(image: np.ndarray, camera, fitted) -> np.ndarray:
+    """``image (H, W, 3)`` uint8 of ``camera`` as the image of ``fitted = fit_camera(camera, w, h)``: resized to
+    the scaled size (``cv2.INTER_AREA`` when shrinking, bilinear when enlarging; both keep pixel centres
+    where ``Camera.scaled`` puts them), then the centred crop."""
+    scaled, x0, y0 = fit_geometry(camera, fitted.width, fitted.height)
+    if scaled.width > camera.width:
+        import cv2
+
+        image = cv2.resize(image, (scaled.width, scaled.height), interpolation=cv2.INTER_LINEAR)
+    else:
+        image = resize_image(image, scaled.width, scaled.height)
+    return np.ascontiguousarray(image[y0:y0 + fitted.height, x0:x0 + fitted.width])
+
+
+def valid_pixels(camera) -> np.ndarray | None:
+    """``(H, W)`` bool: the pixels whose unprojected ray projects back onto them (within ``1e-3`` px): not a
+    fisheye's corners past its model's reach (unprojected to the largest angle it can), nor a point
+    where undistortion fails; None when every pixel is valid."""
+    dirs = np.asarray(camera.pixel_dirs_cam())
+    uv, ok = camera.project(np.where(np.isfinite(dirs), dirs, [0.0, 0.0, 1.0]))
+    v, u = np.mgrid[0:camera.height, 0:camera.width]
+    with np.errstate(invalid="ignore"):
+        ok = np.asarray(ok) & np.isfinite(dirs).all(-1) & (np.hypot(uv[..., 0] - u, uv[..., 1] - v) < 1e-3)
+    return None if ok.all() else ok
+
+
+def recorded_masks(n_capture: int, camera_index: np.ndarray, cameras: list[Any]) -> np.ndarray | None:
+    """``(N, H, W)`` bool masks for frames from ``n_capture`` on (recorded): :func:`valid_pixels` of their
+    cameras, every capture pixel kept; None when every recorded pixel can be unprojected."""
+    valid = {c: valid_pixels(cameras[c]) for c in sorted(set(np.asarray(camera_index[n_capture:]).tolist()))}
+    if all(v is None for v in valid.values()):
+        return None
+    height, width = cameras[0].height, cameras[0].width
+    masks = np.ones((len(camera_index), height, width), bool)
+    for i in range(n_capture, len(camera_index)):
+        if (v := valid[int(camera_index[i])]) is not None:
+            masks[i] = v
+    return masks
 
 
 def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -220,6 +330,8 @@ class SceneData:
     mask_paths: per frame the mask file or None. scale_source: what the poses artifact says about
     its scale (None: nothing); metric: whether lengths are metres. digest: of the original images,
     poses and intrinsics, and of the masks when there are any (not of the shrinking).
+    n_capture: None, or the first ``n_capture`` frames are the capture's and the rest a robot's recorded
+    frames (:meth:`with_recorded_frames`: training frames all, at the capture's training size).
     """
 
     root: Path
@@ -239,6 +351,7 @@ class SceneData:
     depth_unit_scale: float = 1.0
     masks: np.ndarray | None = None
     mask_paths: list[Path | None] | None = None
+    n_capture: int | None = None
 
     @classmethod
     def load(cls, root: str | os.PathLike, points_file: str | None = None, max_image_side: int = 0,
@@ -323,9 +436,10 @@ class SceneData:
         return cam.height, cam.width
 
     def with_max_image_side(self, max_image_side: int) -> SceneData:
-        """This data with the images shrunk to ``max_image_side`` from the originals (itself when they already are)."""
+        """This data with the images shrunk to ``max_image_side`` from the originals (itself when they already are).
+        Recorded frames are fitted to the capture's new training size (:func:`fit_camera`)."""
         full = self.full_cameras or self.cameras
-        cameras = [camera_at(c, max_image_side) for c in full]
+        cameras = self._cameras_at(max_image_side)
         if cameras == self.cameras:
             return self
         if self.image_paths is None:
@@ -335,10 +449,14 @@ class SceneData:
         width, height = cameras[0].width, cameras[0].height
         images = np.empty((self.n_frames, height, width, 3), np.uint8)
         for i, path in enumerate(self.image_paths):
-            images[i] = resize_image(read_image(path), width, height)
-        masks = None
+            c = int(self.camera_index[i])
+            if self._is_capture(i):
+                images[i] = resize_image(read_image(path), width, height)
+            else:
+                images[i] = fit_image(read_image(path), full[c], cameras[c])
+        masks = None if self.n_capture is None else recorded_masks(self.n_capture, self.camera_index, cameras)
         if self.masks is not None:
-            masks = np.ones((self.n_frames, height, width), bool)
+            masks = np.ones((self.n_frames, height, width), bool) if masks is None else masks
             for i, path in enumerate(self.mask_paths or []):
                 if path is not None:
                     masks[i] = resize_mask(read_mask(path), (full[0].width, full[0].height), width, height)
@@ -347,15 +465,78 @@ class SceneData:
         return replace(self, images=images, cameras=cameras, full_cameras=full, max_image_side=max_image_side,
                        masks=masks)
 
+    def _is_capture(self, i: int) -> bool:
+        return self.n_capture is None or i < self.n_capture
+
+    def _cameras_at(self, max_image_side: int) -> list[Any]:
+        """The training cameras for ``max_image_side``: the capture's shrunk (:func:`camera_at`), a recording's
+        fitted to the capture's training size (:func:`fit_camera`)."""
+        full = self.full_cameras or self.cameras
+        n = len(full) if self.n_capture is None else int(self.camera_index[: self.n_capture].max()) + 1
+        capture = [camera_at(c, max_image_side) for c in full[:n]]
+        return capture + [fit_camera(c, capture[0].width, capture[0].height) for c in full[n:]]
+
+    def with_recorded_frames(self, frames: list[RecordedFrame]) -> SceneData:
+        """This data with a robot's recorded ``frames`` appended as training frames (``n_capture`` set).
+
+        Each image is read (its size checked against its camera) and fitted to the capture's training
+        size (:func:`fit_camera`, :func:`fit_image`); its camera is one of ``full_cameras`` as recorded,
+        fitted in ``cameras``. Pixels the fitted model cannot unproject are masked. The digest adds
+        each frame's image, pose and camera. InputError names an image that does not match."""
+        from dataclasses import replace
+
+        from nsim.io.images import read_image
+
+        if self.n_capture is not None:
+            raise ValueError("SceneData already holds recorded frames")
+        if not frames:
+            return self
+        n, m = self.n_frames, len(frames)
+        height, width = self.size_hw
+        full, cameras = list(self.full_cameras or self.cameras), list(self.cameras)
+        n_cams = len(full)
+        camera_index = list(self.camera_index)
+        images = np.empty((n + m, height, width, 3), np.uint8)
+        images[:n] = self.images
+        h = hashlib.sha256(self.digest.encode())
+        for k, f in enumerate(frames):
+            if f.camera not in full[n_cams:]:  # a recorded camera never shares a capture camera's fit
+                full.append(f.camera)
+                cameras.append(fit_camera(f.camera, width, height))
+            c = n_cams + full[n_cams:].index(f.camera)
+            camera_index.append(c)
+            img = read_image(f.path)
+            if img.shape[:2] != (f.camera.height, f.camera.width):
+                raise InputError(f"{f.path}: image is {img.shape[1]}x{img.shape[0]}, its camera "
+                                 f"{f.camera_name!r} is {f.camera.width}x{f.camera.height}")
+            h.update(img.tobytes())
+            h.update(np.ascontiguousarray(f.cam_to_world, dtype=np.float64).tobytes())
+            h.update(json.dumps(f.camera.to_dict(), sort_keys=True).encode())
+            images[n + k] = fit_image(img, f.camera, cameras[c])
+        camera_index = np.asarray(camera_index)
+        masks = recorded_masks(n, camera_index, cameras)
+        if self.masks is not None:
+            masks = np.ones((n + m, height, width), bool) if masks is None else masks
+            masks[:n] = self.masks
+        return replace(self, names=[*self.names, *(f.name for f in frames)], images=images,
+                       cam_to_world=np.concatenate([self.cam_to_world, np.stack([f.cam_to_world for f in frames])]),
+                       cameras=cameras, camera_index=camera_index, depth_paths=[*self.depth_paths, *[None] * m],
+                       digest=h.hexdigest(), full_cameras=full,
+                       image_paths=[*(self.image_paths or []), *(f.path for f in frames)], masks=masks,
+                       mask_paths=[*(self.mask_paths or [None] * n), *[None] * m], n_capture=n)
+
     def split(self, holdout_every: int) -> tuple[np.ndarray, np.ndarray]:
-        """(train indices, held-out indices): frame i is held out when ``i % holdout_every == 0``."""
-        idx = np.arange(self.n_frames)
+        """(train indices, held-out indices): capture frame i is held out when ``i % holdout_every == 0``;
+        recorded frames (``n_capture`` on) always train."""
+        n = self.n_frames if self.n_capture is None else self.n_capture
+        idx = np.arange(n)
+        recorded = np.arange(n, self.n_frames)
         if holdout_every <= 0:
-            return idx, idx[:0]
+            return np.concatenate([idx, recorded]), idx[:0]
         held = idx % holdout_every == 0
         if held.all():
             raise InputError(f"{self.root}: holding out every {holdout_every}th frame leaves no training frames")
-        return idx[~held], idx[held]
+        return np.concatenate([idx[~held], recorded]), idx[held]
 
     def read_depth_z(self, i: int) -> np.ndarray | None:
         """Frame i's z-depth ``(h, w)`` float32 in the poses' units (stored value x ``depth_unit_scale``; NaN
@@ -393,8 +574,9 @@ class SceneData:
     def eval_image(self, i: int, camera) -> np.ndarray:
         """Frame ``i``'s image (H, W, 3) uint8 at ``camera``'s size: the training copy when that is the
         size, else the file read again and shrunk (``cv2.INTER_AREA``)."""
-        if (camera.height, camera.width) == self.size_hw:
-            return self.images[i]
+        if (camera.height, camera.width) == self.size_hw and (self._is_capture(i) or
+                                                               camera == self.cameras[self.camera_index[i]]):
+            return self.images[i]  # (a recorded frame's training copy is cropped: only for its own camera)
         if self.image_paths is None:
             raise ValueError("SceneData without image_paths has images at one size only")
         from nsim.io.images import read_image
@@ -474,3 +656,159 @@ def units_per_metre(data: SceneData) -> tuple[float, str]:
     log.warning("%s: arbitrary scale and nothing to size the scene by (one camera position, no points): "
                 "taking 1 unit per metre", data.root)
     return 1.0, "nothing to measure: 1 unit per metre assumed"
+
+
+# ====================================================================== a robot's recorded frames
+@dataclass(frozen=True, eq=False)
+class RecordedFrame:
+    """One camera frame of a registered recording: ``camera_name``; ``position`` among its camera's recorded
+    frames (0-based); ``index`` in its topic (its file ``camera/<name>/NNNNNN.png``); ``stamp_ns`` on the
+    cameras' clock; ``camera`` as recorded (CameraInfo); ``cam_to_world (4, 4)`` OpenCV axes, the scene's
+    world; ``path`` the image file; ``name`` what ``SceneData.names`` calls it."""
+
+    camera_name: str
+    position: int
+    index: int
+    stamp_ns: int
+    camera: Any
+    cam_to_world: np.ndarray
+    path: Path
+    name: str
+
+
+@dataclass(frozen=True, eq=False)
+class RecordedFrames:
+    """A registered recording's camera frames inside its registered trajectory (``frames``, camera by camera
+    in the order given, each camera's in recorded order), and per camera how many it recorded and how
+    many lay outside the trajectory's span (dropped: no pose without extrapolating)."""
+
+    frames: tuple[RecordedFrame, ...]
+    recorded: dict[str, int]
+    outside: dict[str, int]
+
+
+@dataclass(frozen=True)
+class RecordedSplit:
+    """Indices into ``RecordedFrames.frames``: ``train`` and ``held_out``; ``wanted``: the robot frames the
+    share asked for before capping at the candidates."""
+
+    train: tuple[int, ...]
+    held_out: tuple[int, ...]
+    wanted: int
+
+
+def read_recorded_frames(registration_dir: str | os.PathLike, recording_dir: str | os.PathLike,
+                         cameras: tuple[str, ...] = (), label: str = "recording") -> RecordedFrames:
+    """The colour camera frames of the recording in ``recording_dir`` (``nsim import-log``) placed in the
+    scene's world by the registration in ``registration_dir`` (``nsim register-log``).
+
+    A frame stamped ``s`` on the cameras' clock was captured at odometry time ``s - clock_offset_s``
+    (``nsim.rendering.recording.odometry_time_ns``); its pose is ``body_to_world`` interpolated there
+    times the camera's ``sensor_to_body`` (``nsim.rendering.recording.sensor_poses``). ``cameras``: the
+    camera names (empty: every camera stream). Reads no image but each camera's first (grey or 16-bit
+    frames cannot train a colour field). ``label`` names the artifacts in errors. InputError on problems.
+    """
+    import cv2
+
+    from nsim.geometry.cameras import Camera
+    from nsim.io.tum import read_tum
+    from nsim.rendering.recording import odometry_time_ns, sensor_poses
+
+    reg_dir, rec_dir = Path(registration_dir), Path(recording_dir)
+    doc = json.loads((reg_dir / "registration.json").read_text())
+    offset_s = doc.get("clock_offset_s")
+    if isinstance(offset_s, bool) or not isinstance(offset_s, int | float) or not math.isfinite(offset_s):
+        raise InputError(f"{label}: registration.json has no finite clock_offset_s")
+    traj_ns = np.load(reg_dir / "trajectory_world_ns.npy", allow_pickle=False)
+    body_to_world = read_tum(reg_dir / "trajectory_world.tum").poses_se3()
+    if traj_ns.ndim != 1 or len(traj_ns) != len(body_to_world) or len(traj_ns) < 1 or np.any(np.diff(traj_ns) <= 0):
+        raise InputError(f"{label}: trajectory_world_ns.npy and trajectory_world.tum disagree, are empty or are "
+                         "not increasing")
+    streams = {k.split("/", 1)[1]: v for k, v in json.loads((rec_dir / "recording.json").read_text())["streams"].items()
+               if v.get("kind") == "camera"}
+    if len(set(cameras)) < len(cameras):
+        raise InputError(f"{label}: cameras {list(cameras)} names a camera twice")
+    if unknown := [c for c in cameras if c not in streams]:
+        raise InputError(f"{label}: no camera {', '.join(map(repr, unknown))} in the recording (it has: "
+                         f"{', '.join(sorted(streams)) or 'none'})")
+    frames, recorded, outside = [], {}, {}
+    for name in cameras or tuple(sorted(streams)):
+        entry = streams[name]
+        try:
+            camera = Camera.from_dict(entry["camera"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{label}: camera {name!r}: no usable camera model ({e})") from None
+        stamps = np.load(rec_dir / entry["dir"] / "stamps_ns.npy", allow_pickle=False)
+        indices = np.asarray(entry["frames"], dtype=np.int64)
+        if stamps.shape != indices.shape:
+            raise InputError(f"{label}: camera {name!r}: {len(stamps)} stamps for {len(indices)} frames")
+        paths = [rec_dir / entry["dir"] / f"{i:06d}.png" for i in indices]
+        if paths:
+            first = cv2.imread(str(paths[0]), cv2.IMREAD_UNCHANGED)
+            if first is None:
+                raise InputError(f"{paths[0]}: not a readable image")
+            if first.ndim != 3 or first.dtype != np.uint8:
+                raise InputError(f"{label}: camera {name!r} records {'grey' if first.ndim == 2 else first.dtype} "
+                                 "images; a scene trains on colour (choose colour cameras with --recording-camera)")
+        odom = odometry_time_ns(stamps, float(offset_s), on_camera_clock=True)
+        inside, _, cam_to_world = sensor_poses(odom, traj_ns, body_to_world,
+                                               np.asarray(entry["sensor_to_body"], dtype=np.float64))
+        recorded[name], outside[name] = len(indices), int((~inside).sum())
+        frames += [RecordedFrame(name, int(j), int(indices[j]), int(stamps[j]), camera, cam_to_world[j], paths[j],
+                                 f"recording:{entry['dir']}/{int(indices[j]):06d}.png")
+                   for j in np.flatnonzero(inside)]
+    return RecordedFrames(tuple(frames), recorded, outside)
+
+
+def split_recorded_frames(recorded: RecordedFrames, capture_train: int, cfg: RecordingConfig) -> RecordedSplit:
+    """Which recorded frames train and which are held out (``SHARE_MEANING``, ``HELDOUT_MEANING``), with
+    ``capture_train`` capture frames in training. A function of its arguments alone."""
+    frames = recorded.frames
+    held = tuple(k for k, f in enumerate(frames) if f.position % cfg.holdout_every == 0)
+    candidates: dict[str, list[int]] = {}
+    for k, f in enumerate(frames):
+        if f.position % cfg.holdout_every:
+            candidates.setdefault(f.camera_name, []).append(k)
+    total = sum(len(c) for c in candidates.values())
+    wanted = round(cfg.share / (1.0 - cfg.share) * capture_train)
+    n = min(wanted, total)
+    # per camera: its proportional quota, the leftover frames to the largest remainders (ties: camera order)
+    quota = {c: n * len(ks) / total for c, ks in candidates.items()} if total else {}
+    count = {c: math.floor(q) for c, q in quota.items()}
+    for c in sorted(quota, key=lambda c: -(quota[c] - count[c]))[: n - sum(count.values())]:
+        count[c] += 1
+    train = []
+    for c, ks in candidates.items():  # evenly spaced, centred: the k-th of n_c at floor((k + 0.5) m / n_c)
+        train += [ks[int((k + 0.5) * len(ks) / count[c])] for k in range(count[c])]
+    return RecordedSplit(tuple(sorted(train)), held, wanted)
+
+
+def recording_record(recorded: RecordedFrames, split: RecordedSplit, cfg: RecordingConfig, capture_train: int,
+                     first_image: int, registration: str, recording: str) -> dict[str, Any]:
+    """What ``scene.json`` says about the robot frames (its ``recording`` key): the artifacts, the rule
+    (share, hold-out), per camera the counts, the frames that trained (``image``: their index in
+    ``images`` and the appearance embeddings) and the held-out frames to score on."""
+    from nsim.config import to_dict
+
+    frames = recorded.frames
+    n = len(split.train)
+
+    def rows(ids, with_image: bool) -> list[dict[str, Any]]:
+        return [{"camera": frames[k].camera_name, "index": frames[k].index, "stamp_ns": frames[k].stamp_ns,
+                 **({"image": first_image + j} if with_image else {})} for j, k in enumerate(ids)]
+
+    per_camera = {c: {"recorded": recorded.recorded[c], "outside_trajectory": recorded.outside[c],
+                      "held_out": sum(frames[k].camera_name == c for k in split.held_out),
+                      "train": sum(frames[k].camera_name == c for k in split.train)} for c in recorded.recorded}
+    return {
+        "registration": registration, "recording": recording,
+        "options": to_dict(cfg), "share_meaning": SHARE_MEANING, "held_out_meaning": HELDOUT_MEANING,
+        "share_trained": n / (capture_train + n) if capture_train + n else 0.0,
+        "capture_train_frames": capture_train, "robot_train_frames": n, "robot_frames_wanted": split.wanted,
+        "cameras": per_camera,
+        "fit": "each robot frame scaled uniformly to cover the capture's training size, then centre-cropped "
+               "(nsim.train.scene_data.fit_camera)",
+        "train": rows(split.train, True),
+        "held_out": rows(split.held_out, False),
+    }
+
