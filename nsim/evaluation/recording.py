@@ -19,7 +19,7 @@ values), depth images on the real sensor's valid pixels (finite, > 0: ``nsim.met
 valid range applies on top; simulated NaN at such a pixel is left out and counted), and LiDAR
 points (range = |XYZ|; a point with a non-finite coordinate is no return). The SLAM ground truth
 is the camera's pose at each frame's odometry time (``odom_time_ns``) on the registration's
-``trajectory_world.tum`` (body_to_world, interpolated: ``nsim.crowd.scenario.interpolate_poses``)
+``trajectory_world.tum`` (body_to_world, interpolated: ``nsim.rendering.recording.sensor_poses``)
 through the recorded extrinsic ``sensor_to_body``; frames outside that trajectory's span are left
 out.
 """
@@ -75,12 +75,13 @@ class RegisteredTrajectory:
     body_to_world: np.ndarray
     clock_offset_s: float
 
-    def cam_to_world(self, odom_ns: np.ndarray, sensor_to_body: np.ndarray) -> np.ndarray:
-        from nsim.crowd.scenario import interpolate_poses
+    def sensor_poses(self, odom_ns: np.ndarray, sensor_to_body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``inside (N,)`` and the sensor's world poses ``(N, 4, 4)`` at odometry times ``odom_ns`` (NaN
+        outside the trajectory's span): ``nsim.rendering.recording.sensor_poses``, as the render placed them."""
+        from nsim.rendering.recording import sensor_poses
 
-        t0 = self.stamps_ns[0]
-        body = interpolate_poses((self.stamps_ns - t0) / 1e9, self.body_to_world, (np.asarray(odom_ns) - t0) / 1e9)
-        return body @ np.asarray(sensor_to_body, dtype=np.float64)
+        inside, _, sensor_to_world = sensor_poses(odom_ns, self.stamps_ns, self.body_to_world, sensor_to_body)
+        return inside, sensor_to_world
 
 
 def _artifact(store, art_id: Any, kind: str, what: str):
@@ -287,18 +288,20 @@ class RecordingTruth(GroundTruth):
             frames = st.frames[:: cfg.stride]
             if cfg.max_frames is not None:
                 frames = frames[: cfg.max_frames]
-            shift = int(round(reg.clock_offset_s * 1e9))
-            odom_ns = np.array([int(f["odom_time_ns"]) if f.get("odom_time_ns") is not None
-                                else int(f["stamp_ns"]) - shift for f in frames], dtype=np.int64)
-            inside = (odom_ns >= reg.stamps_ns[0]) & (odom_ns <= reg.stamps_ns[-1])
+            from nsim.rendering.recording import odometry_time_ns
+
+            stamps = np.array([int(f["stamp_ns"]) for f in frames], dtype=np.int64)
+            odom_ns = odometry_time_ns(stamps, reg.clock_offset_s, True)
+            given = [f.get("odom_time_ns") is not None for f in frames]  # as the render moved them, when it says
+            odom_ns[given] = [int(f["odom_time_ns"]) for f, g in zip(frames, given, strict=True) if g]
+            inside, cam_to_world = reg.sensor_poses(odom_ns, _extrinsic(st))
             if not inside.any():
                 raise InputError(f"render {r.short}: no frame of camera {st.name} lies in the time span of "
                                  f"registration {reg.id[:12]}'s trajectory (odometry time "
                                  f"{reg.stamps_ns[0] / 1e9:.3f}..{reg.stamps_ns[-1] / 1e9:.3f} s)")
             frames = [f for f, k in zip(frames, inside, strict=True) if k]
-            odom_ns = odom_ns[inside]
-            times = odom_ns / 1e9
-            truth = Trajectory.from_poses(times, reg.cam_to_world(odom_ns, _extrinsic(st)))
+            times = odom_ns[inside] / 1e9
+            truth = Trajectory.from_poses(times, cam_to_world[inside])
             sim, real = [], []
             for f in frames:
                 sim_path, real_path = self._files(st, f, "png")
