@@ -31,6 +31,8 @@ demo: setup
 	$(BIN)/python pipelines/demo.py $(DEMO_ARGS)
 
 # The paper's five tables end to end on the test room (reduced size; --size tiny|small|default).
+# PAPER_ARGS="--size tiny --recording": also against the realistic robot log of the Spot run (import, register,
+# render, evaluate; printed beside the oracle's); "--recording BAG [--poses REF --scene REF]": against a robot's bag.
 paper: setup
 	$(BIN)/python pipelines/paper.py $(PAPER_ARGS)
 
