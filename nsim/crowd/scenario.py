@@ -63,6 +63,7 @@ from nsim.crowd.neighbours import (
     segments_intersect,
 )
 from nsim.errors import InputError, NsimError
+from nsim.geometry.transforms import interpolate_poses
 
 log = logging.getLogger(__name__)
 
@@ -787,26 +788,6 @@ def waypoint_poses(
     keep = np.r_[True, np.diff(times_a) > 1e-9]  # coinciding samples (no turn) are identical
     times_a, xy_a, yaw_a = times_a[keep], np.array(xy)[keep], _wrap(np.array(yaw)[keep])
     return times_a, yaw_poses_se3(xy_a, yaw_a, body_height_m)
-
-
-def interpolate_poses(times_s: np.ndarray, poses_se3: np.ndarray, query_s: np.ndarray) -> np.ndarray:
-    """Poses ``(T, 4, 4)`` at ``query_s (T,)`` from timed poses ``(S,)``, ``(S, 4, 4)``.
-
-    Positions are linear, rotations slerped between samples; outside the samples' span the first
-    or last pose is held.
-    """
-    from scipy.spatial.transform import Rotation, Slerp
-
-    t = np.asarray(times_s, dtype=np.float64)
-    q = np.clip(np.asarray(query_s, dtype=np.float64), t[0], t[-1])
-    out = np.tile(np.eye(4), (len(q), 1, 1))
-    for axis in range(3):
-        out[:, axis, 3] = np.interp(q, t, poses_se3[:, axis, 3])
-    if len(t) == 1:
-        out[:, :3, :3] = poses_se3[0, :3, :3]
-    else:
-        out[:, :3, :3] = Slerp(t, Rotation.from_matrix(poses_se3[:, :3, :3]))(q).as_matrix()
-    return out
 
 
 def yaw_of_poses(poses_se3: np.ndarray) -> np.ndarray:

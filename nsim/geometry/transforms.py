@@ -185,3 +185,23 @@ def is_rotation(R: Array, tol: float = 1e-6) -> np.ndarray:
     ortho_err = np.abs(R.swapaxes(-1, -2) @ R - np.eye(3)).max(axis=(-2, -1))
     det_err = np.abs(np.linalg.det(R) - 1.0)
     return finite & (ortho_err <= tol) & (det_err <= tol)
+
+
+def interpolate_poses(times_s: np.ndarray, poses_se3: np.ndarray, query_s: np.ndarray) -> np.ndarray:
+    """Poses ``(T, 4, 4)`` at ``query_s (T,)`` from timed poses ``(S,)``, ``(S, 4, 4)``.
+
+    Positions are linear, rotations slerped between samples; outside the samples' span the first
+    or last pose is held.
+    """
+    from scipy.spatial.transform import Slerp
+
+    t = np.asarray(times_s, dtype=np.float64)
+    q = np.clip(np.asarray(query_s, dtype=np.float64), t[0], t[-1])
+    out = np.tile(np.eye(4), (len(q), 1, 1))
+    for axis in range(3):
+        out[:, axis, 3] = np.interp(q, t, poses_se3[:, axis, 3])
+    if len(t) == 1:
+        out[:, :3, :3] = poses_se3[0, :3, :3]
+    else:
+        out[:, :3, :3] = Slerp(t, Rotation.from_matrix(poses_se3[:, :3, :3]))(q).as_matrix()
+    return out

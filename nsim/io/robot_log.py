@@ -453,7 +453,7 @@ class TfTree:
 def _link_at(link: MovingLink, stamps_ns: np.ndarray) -> np.ndarray:
     """``child_to_parent (N, 4, 4)`` of a moving link at stamps inside its span: its own matrices at
     its own stamps, interpolated between them (:func:`nsim.crowd.scenario.interpolate_poses`)."""
-    from nsim.crowd.scenario import interpolate_poses
+    from nsim.geometry.transforms import interpolate_poses
 
     at = np.clip(np.searchsorted(link.stamps_ns, stamps_ns), 0, len(link.stamps_ns) - 1)
     exact = link.stamps_ns[at] == stamps_ns

@@ -45,7 +45,7 @@ def sensor_poses(odom_ns: np.ndarray, traj_ns: np.ndarray, body_to_world: np.nda
     ``body_to_world (N, 4, 4)`` and ``sensor_to_world (N, 4, 4) = body_to_world @ sensor_to_body``,
     both NaN where not ``inside``.
     """
-    from nsim.crowd.scenario import interpolate_poses
+    from nsim.geometry.transforms import interpolate_poses
 
     odom = np.asarray(odom_ns, dtype=np.int64).reshape(-1)
     traj = np.asarray(traj_ns, dtype=np.int64).reshape(-1)

@@ -409,7 +409,7 @@ def _usable(frame_s: np.ndarray, traj_s: np.ndarray, lo_s: float, hi_s: float, m
 def _pairs(traj_s: np.ndarray, body_to_odom: np.ndarray, frame_s: np.ndarray, sensor_to_body: np.ndarray,
            cam_to_world: np.ndarray, offset_s: float) -> PosePairs:
     """The frames at odometry times ``frame_s - offset_s`` as pose pairs (body poses interpolated)."""
-    from nsim.crowd.scenario import interpolate_poses
+    from nsim.geometry.transforms import interpolate_poses
 
     body = interpolate_poses(traj_s, body_to_odom, frame_s - offset_s)
     return PosePairs(body @ sensor_to_body, cam_to_world, body[:, :3, 3])

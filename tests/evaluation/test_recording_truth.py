@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from nsim.cli import main
-from nsim.crowd.scenario import interpolate_poses
+from nsim.geometry.transforms import interpolate_poses
 from nsim.io.exr import read_depth_exr, read_points_exr, write_depth_exr, write_points_exr
 from nsim.io.images import read_image, write_image
 from nsim.io.tum import Trajectory, read_tum, write_tum

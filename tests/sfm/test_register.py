@@ -228,7 +228,7 @@ def drifted_log(seed: int, faults=None, noise_m: float = 0.01, noise_deg: float 
     Returns (cam_to_world, stamps_ns, sensor_to_body, body_to_odom, traj_ns, bad, truth body_to_world (N, 4, 4),
     odom_to_world (4, 4), clock_offset_s).
     """
-    from nsim.crowd.scenario import interpolate_poses
+    from nsim.geometry.transforms import interpolate_poses
     from nsim.synth.robot_log import RobotLogFaults, odom_to_world, odometry_from_truth
 
     faults = RobotLogFaults() if faults is None else faults
