@@ -11,7 +11,8 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 
 @click.command("render")
 @stage_options("render")
-@click.option("--trajectory", default=None, help="A trajectory artifact (nsim simulate): render the robot's sensors per tick.")
+@click.option("--trajectory", default=None, help="A trajectory artifact (nsim simulate): render the robot's sensors per tick "
+                                                 "(with --recording: only the people drawn by --humans).")
 @click.option("--poses", default=None, help="A poses or capture artifact: render its frames' cameras (for evaluation).")
 @click.option("--recording", default=None,
               help="A registration artifact (nsim register-log): render exactly its recording's sensors, frame for frame.")
@@ -19,7 +20,8 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
                                             "required with --poses and --recording).")
 @click.option("--rig", type=click.Path(dir_okay=False), default=None,
               help="Robot rig file (trajectory mode), e.g. configs/robots/spot.yaml.")
-@click.option("--humans", multiple=True, help="Human checkpoint(s) that draw the trajectory's people (repeatable).")
+@click.option("--humans", multiple=True, help="Human checkpoint(s) that draw the trajectory's people (repeatable; with "
+                                               "--recording, their clock: people_time_offset_s).")
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="Who renders the shards (never changes the result).")
 @click.option("--address", default=None, help="--engine ray: a cluster to join (else $RAY_ADDRESS, else a local instance).")
@@ -42,10 +44,11 @@ def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, p
     from nsim.rendering.engine import EngineConfig
     from nsim.stages import render
 
-    if sum(x is not None for x in (trajectory, poses, recording)) != 1:
-        raise click.UsageError("give exactly one of --trajectory, --poses or --recording")
+    if sum(x is not None for x in (trajectory if recording is None else None, poses, recording)) != 1:
+        raise click.UsageError("give exactly one of --trajectory, --poses or --recording (with --recording, "
+                               "--trajectory only supplies the people)")
     # every destination is checked before any work: nothing is rendered or published for a run that cannot finish
-    if rosbag_path and trajectory is None:
+    if rosbag_path and (trajectory is None or recording is not None):
         raise click.UsageError(f"--rosbag {rosbag_path}: only a --trajectory render (a robot's run) exports to "
                                f"a ROS 2 bag, not a {'--poses' if poses is not None else '--recording'} render")
     if rosbag_path:

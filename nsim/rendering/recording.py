@@ -18,6 +18,16 @@ odometry time lies outside ``[traj_ns[0], traj_ns[-1]]`` has no pose: it is not 
 LiDAR: one simulated ray per recorded point, from the sensor's origin along the point's direction
 (``point_directions``); the simulated return lies on that ray (``points_from_ranges``), so sim and
 real ranges pair point for point.
+
+People (a ``trajectory`` of ``nsim simulate``: ``time_s (T,)``, per tick and person ``position_m
+(T, P, 2)``, ``heading_rad (T, P)``, ``gait_phase (T, P)`` in [0, 1), NaN positions for a person no
+longer in the run): a frame at odometry time ``o`` (int64 ns) sees the people of simulation time
+``people_time_s = time_s[0] + (o - first_odometry_ns) / 1e9 + offset_s``, where
+``first_odometry_ns`` is the recording's first odometry stamp. ``offset_s = 0`` is the mapping
+``nsim capture robot-log`` writes (its odometry clock reads ``start_time_s`` at the run's first
+tick and advances with the simulation's). Between two ticks ``people_states_at`` interpolates
+(positions linearly, headings along the shorter arc, gait phases forward modulo 1); on a tick it
+returns that tick's state exactly; outside ``[time_s[0], time_s[-1]]`` nobody is present.
 """
 
 from __future__ import annotations
@@ -99,3 +109,52 @@ def points_from_ranges(dirs: np.ndarray, range_m: np.ndarray) -> np.ndarray:
     r = np.asarray(range_m, dtype=np.float64).reshape(-1)
     hit = np.isfinite(r)
     return np.where(hit[:, None], np.asarray(dirs, dtype=np.float64) * np.where(hit, r, 0.0)[:, None], np.nan)
+
+
+def people_time_s(odom_ns: np.ndarray, first_odometry_ns: int, run_start_s: float, offset_s: float) -> np.ndarray:
+    """Simulation times ``(N,)`` float64 of the people seen at odometry times ``odom_ns (N,)`` int64:
+    ``run_start_s + (odom_ns - first_odometry_ns) / 1e9 + offset_s`` (the difference taken in integer
+    nanoseconds, so an epoch-sized clock costs no precision)."""
+    d = np.asarray(odom_ns, dtype=np.int64).reshape(-1) - np.int64(first_odometry_ns)
+    return float(run_start_s) + d / 1e9 + float(offset_s)
+
+
+def people_states_at(time_s: np.ndarray, position_m: np.ndarray, heading_rad: np.ndarray, gait_phase: np.ndarray,
+                     query_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The people's state at simulation time ``query_s``.
+
+    time_s: ``(T,)`` increasing; position_m: ``(T, P, 2)`` (NaN: not in the run); heading_rad,
+    gait_phase: ``(T, P)``. Returns ``present (P,)`` bool, ``position_m (P, 2)``, ``heading_rad (P,)``,
+    ``gait_phase (P,)`` in [0, 1) (NaN where not present). On a tick: that tick's values, bit for bit.
+    Between ticks i and i + 1 (weight ``w``): present where both ticks are; positions linear, heading
+    ``h_i + w * wrap(h_{i+1} - h_i)`` (the shorter arc), phase ``(g_i + w * ((g_{i+1} - g_i) mod 1)) mod 1``
+    (gait only advances). Outside ``[time_s[0], time_s[-1]]``: nobody present.
+    """
+    t = np.asarray(time_s, dtype=np.float64).reshape(-1)
+    pos = np.asarray(position_m, dtype=np.float64)
+    head = np.asarray(heading_rad, dtype=np.float64)
+    phase = np.asarray(gait_phase, dtype=np.float64)
+    n = pos.shape[1] if pos.ndim == 3 else 0
+    if pos.shape != (len(t), n, 2) or head.shape != (len(t), n) or phase.shape != (len(t), n) or len(t) == 0:
+        raise ValueError(f"expected time_s (T,), position_m (T, P, 2), heading_rad and gait_phase (T, P); got "
+                         f"{t.shape}, {pos.shape}, {head.shape}, {phase.shape}")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("time_s: expected strictly increasing times")
+    q = float(query_s)
+    nobody = (np.zeros(n, dtype=bool), np.full((n, 2), np.nan), np.full(n, np.nan), np.full(n, np.nan))
+    if not (t[0] <= q <= t[-1]):
+        return nobody
+    hit = np.flatnonzero(t == q)
+    if len(hit):
+        i = int(hit[0])
+        present = np.isfinite(pos[i]).all(-1)
+        return (present, np.where(present[:, None], pos[i], np.nan), np.where(present, head[i], np.nan),
+                np.where(present, phase[i], np.nan))
+    i = int(np.searchsorted(t, q, side="right")) - 1
+    w = (q - t[i]) / (t[i + 1] - t[i])
+    present = np.isfinite(pos[i]).all(-1) & np.isfinite(pos[i + 1]).all(-1)
+    p = pos[i] + w * (pos[i + 1] - pos[i])
+    dh = np.mod(head[i + 1] - head[i] + np.pi, 2.0 * np.pi) - np.pi
+    h = np.mod(head[i] + w * dh + np.pi, 2.0 * np.pi) - np.pi
+    g = np.mod(phase[i] + w * np.mod(phase[i + 1] - phase[i], 1.0), 1.0)
+    return present, np.where(present[:, None], p, np.nan), np.where(present, h, np.nan), np.where(present, g, np.nan)

@@ -17,7 +17,13 @@ Three modes:
     its stamp moved onto the odometry clock (``nsim.rendering.recording``), the body pose
     interpolated in the registration's world trajectory, the stream's own camera model at its
     recorded size, or (LiDAR) one ray along each recorded point's direction. Frames outside the
-    trajectory's span are skipped and counted. No sensor noise; no people (yet).
+    trajectory's span are skipped and counted. No sensor noise. With ``--trajectory`` and
+    ``--humans`` the run's people are drawn as in trajectory mode, posed at the frame's instant
+    (``HumanSet.joint_transforms_at``: interpolated between the run's ticks) on every stream, the
+    run's clock tied to the recording's by ``people_time_offset_s`` (``nsim.rendering.recording``:
+    0 = the run's first tick at the recording's first odometry stamp, as ``nsim capture robot-log``
+    records a run); frames outside the run's span are drawn without people and counted; the
+    robot's poses still come from the registration.
 
 Artifact layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses)::
 
@@ -45,12 +51,18 @@ Recording mode mirrors the recording's layout, file for file, for the frames ren
 
     render.json                  mode "recording", the recording, registration and scene ids, per
                                  stream: name, kind, frames (index, stamp_ns, odom_time_ns,
-                                 sensor_to_world 4 x 4) and skipped_outside_trajectory
+                                 sensor_to_world 4 x 4; with people people_time_s) and
+                                 skipped_outside_trajectory (with people people_outside_run); with
+                                 people ``people``: trajectory, humans, people_time_offset_s, the run's
+                                 span, the first odometry stamp and the rule
     camera/<name>/NNNNNN.png     8-bit sRGB at the recorded size; grey where the recording's is grey
     depth/<name>/NNNNNN.exr      float32 channel Z: z-depth in metres; inf = no return, NaN = invalid
     lidar/<name>/NNNNNN.exr      one row of the recorded file's N points, in its order: X Y Z (sensor
                                  frame, metres; NaN without a return) and range (metres along the
                                  recorded point's direction; inf = no return, NaN = no direction)
+    mask/<name>/NNNNNN.png       (with people; camera streams) 16-bit instance mask: 0 background,
+                                 k + 1 = the trajectory's person k (a folder that no recording has)
+    boxes/<name>.json            (with people; camera streams) COCO-style person boxes per frame
 
 Sharding: frames are cut into fixed shards of ``shard_frames``; each shard is rendered into its
 own directory under ``<workspace>/tmp/render.<key>.shards/`` and published there by an atomic
@@ -102,6 +114,11 @@ class Config:
     camera_clock_kinds: tuple[str, ...] = param(("camera",), help="recording mode: the stream kinds stamped on the "
                                                 "cameras' clock (shifted by the registration's clock_offset_s); the "
                                                 "others are stamped on the odometry's")
+    people_time_offset_s: float = param(0.0, ge=-1e6, le=1e6,
+                                        help="recording mode with --trajectory: a frame at odometry time o sees the "
+                                             "run's people at simulation time time_s[0] + (o - the recording's first "
+                                             "odometry stamp) + people_time_offset_s; 0 puts the run's first tick at "
+                                             "the first odometry stamp, as nsim capture robot-log records a run")
     image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow; "
                                                        "recording mode renders the recorded sizes: 1 only)")
     lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep (recording "
@@ -138,8 +155,8 @@ class Config:
 @dataclasses.dataclass(frozen=True)
 class Inputs:
     """trajectory, poses or registration (exactly one; registration: ``--recording``, a registered
-    recording); scene: a scene-checkpoint (default: the one the trajectory names); rig: a rig file
-    (trajectory mode); humans: human-checkpoint ids."""
+    recording, with which a trajectory only supplies the people); scene: a scene-checkpoint (default:
+    the one the trajectory names); rig: a rig file (trajectory mode); humans: human-checkpoint ids."""
 
     trajectory: str | None = None
     poses: str | None = None
@@ -175,8 +192,10 @@ class Outputs:
 def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     """Artifact ids resolved and checked (kinds, the scene checkpoint's presence)."""
     store = ctx.store
-    if sum(x is not None for x in (inputs.trajectory, inputs.poses, inputs.registration)) != 1:
-        raise InputError("render: give exactly one of --trajectory, --poses or --recording")
+    modes = (inputs.poses, inputs.registration, inputs.trajectory if inputs.registration is None else None)
+    if sum(x is not None for x in modes) != 1:
+        raise InputError("render: give exactly one of --trajectory, --poses or --recording (with --recording, "
+                         "--trajectory only supplies the people)")
     if inputs.registration is not None:
         return resolve_recording_inputs(inputs, ctx)
     traj = poses = None
@@ -207,7 +226,8 @@ def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
 
 
 def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
-    """Recording mode: a registration (its recording present), a metric scene checkpoint, no people."""
+    """Recording mode: a registration (its recording present), a metric scene checkpoint, and people (human
+    checkpoints and the trajectory whose people they draw) both or neither."""
     store = ctx.store
     reg = store.resolve(inputs.registration)
     kind = store.get(reg).kind
@@ -218,9 +238,13 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     if rec is None or not (store.root / "objects" / rec[:2] / rec).is_dir():
         raise InputError(f"--recording {inputs.registration}: its recording {str(rec)[:12]} is missing from the "
                          f"workspace {store.root} (import it again with nsim import-log)")
-    if inputs.humans:
-        raise InputError("render --recording: --humans is not supported (people are drawn from a simulated run's "
-                         "ticks; a recording has no such run)")
+    if inputs.humans and inputs.trajectory is None:
+        raise InputError("render --recording: --humans needs --trajectory, the nsim simulate run whose people they "
+                         "draw (a recording has no people of its own)")
+    if inputs.trajectory is not None and not inputs.humans:
+        raise InputError(f"render --recording: --trajectory {inputs.trajectory} only supplies the people; pass "
+                         "--humans (the human checkpoints that draw them)")
+    traj = store.resolve(inputs.trajectory, kind="trajectory") if inputs.trajectory is not None else None
     if inputs.rig is not None:
         raise InputError(f"render --recording: --rig {inputs.rig}: a recording renders its own recorded sensors")
     if inputs.scene is None:
@@ -234,7 +258,8 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     if trained_on and registered_to and trained_on != registered_to:
         log.warning("render --recording: scene %s was trained on poses %s, the recording registered to poses %s: "
                     "their worlds must agree", scene[:12], trained_on[:12], registered_to[:12])
-    return Inputs(scene=scene, registration=reg)
+    humans = tuple(store.resolve(h, kind="human-checkpoint") for h in inputs.humans)
+    return Inputs(scene=scene, registration=reg, trajectory=traj, humans=humans)
 
 
 def load_rig_for(inputs: Inputs, cfg: Config):
@@ -316,8 +341,9 @@ def plan_frames(inputs: Inputs, cfg: Config, ctx: RunContext) -> list[dict[str, 
 
 def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Recording mode: the frames to render (``{stream, index, stamp_ns, odom_time_ns, body_to_world,
-    sensor_to_world}``, stream by stream) and the streams (``{key, kind, name, sensor_to_body, camera,
-    color, skipped_outside_trajectory}``). Every check before any rendering."""
+    sensor_to_world}``, with people also ``people_time_s``, stream by stream) and the streams (``{key, kind,
+    name, sensor_to_body, camera, color, skipped_outside_trajectory}``, with people also
+    ``people_outside_run``). Every check before any rendering."""
     import cv2
 
     from nsim.io.tum import read_tum
@@ -352,6 +378,7 @@ def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[d
     except ValueError as e:
         raise InputError(f"sensors: recording {rec.id[:12]} has no stream {e} (it has: "
                          f"{', '.join(doc['streams'])})") from None
+    people = _people_clock(inputs, ctx, rec) if inputs.trajectory is not None else None
     frames, streams = [], []
     for key in keys:
         entry = doc["streams"][key]
@@ -370,9 +397,16 @@ def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[d
         rows = [{"stream": key, "index": int(indices[p]), "stamp_ns": int(stamps[p]), "odom_time_ns": int(t),
                  "body_to_world": b.tolist(), "sensor_to_world": w.tolist()}
                 for p, t, b, w, ok in zip(pick, odom, body, sensor, inside, strict=True) if ok]
-        frames += rows[: cfg.max_frames]
+        rows = rows[: cfg.max_frames]
+        frames += rows
         info = {"key": key, "kind": kind, "name": name, "sensor_to_body": mount.tolist(), "dir": entry["dir"],
                 "skipped_outside_trajectory": int((~inside).sum()), "camera": entry.get("camera"), "color": "rgb"}
+        if people is not None:
+            t = core.people_time_s(np.array([r["odom_time_ns"] for r in rows], dtype=np.int64),
+                                   people["first_odometry_ns"], people["run_start_s"], cfg.people_time_offset_s)
+            for r, ti in zip(rows, t, strict=True):
+                r["people_time_s"] = float(ti)
+            info["people_outside_run"] = int(((t < people["run_start_s"]) | (t > people["run_end_s"])).sum())
         if kind == "camera" and len(indices):
             first = cv2.imread(str(rec.file(f"{entry['dir']}/{indices[0]:06d}.png")), cv2.IMREAD_UNCHANGED)
             if first is None:
@@ -387,7 +421,40 @@ def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[d
     if not frames:
         raise InputError(f"render --recording: no frames selected in {', '.join(keys)} (check start / tick_stride / "
                          "max_frames, and that the frames lie inside the registered trajectory)")
+    if people is not None:
+        outside = sum(st["people_outside_run"] for st in streams)
+        if outside == len(frames):
+            seen = [f["people_time_s"] for f in frames]
+            raise InputError(f"--trajectory {inputs.trajectory[:12]}: its run spans simulation time "
+                             f"[{people['run_start_s']:g}, {people['run_end_s']:g}] s, the recording's frames see "
+                             f"[{min(seen):g}, {max(seen):g}] s (people_time_offset_s {cfg.people_time_offset_s:g}): "
+                             "no frame overlaps the run, nobody would be drawn")
+        if outside:
+            log.warning("render --recording: %d of %d frames lie outside the run's time span; drawn without people",
+                        outside, len(frames))
     return frames, streams
+
+
+def _people_clock(inputs: Inputs, ctx: RunContext, rec) -> dict[str, Any]:
+    """Recording mode with people: the run's time span and the recording's first odometry stamp, the two ends
+    of ``nsim.rendering.recording.people_time_s``; the trajectory's people arrays checked."""
+    from nsim.io.npz import read_npz
+
+    path = ctx.store.get(inputs.trajectory).file("trajectory.npz")
+    a = read_npz(path, required=("time_s", "position_m", "heading_rad", "gait_phase", "height_m"))
+    t, pos = a["time_s"], a["position_m"]
+    n = pos.shape[1] if pos.ndim == 3 else -1
+    if (t.ndim != 1 or len(t) < 1 or not np.isfinite(t).all() or np.any(np.diff(t) <= 0) or pos.shape != (len(t), n, 2)
+            or a["heading_rad"].shape != (len(t), n) or a["gait_phase"].shape != (len(t), n)
+            or a["height_m"].shape != (n,)):
+        raise InputError(f"{path}: time_s (T,) increasing, position_m (T, P, 2), heading_rad and gait_phase (T, P), "
+                         "height_m (P,) expected")
+    if n == 0:
+        raise InputError(f"--trajectory {inputs.trajectory[:12]}: its run has no people to draw")
+    odom_ns = np.load(rec.file("trajectory_ns.npy"), allow_pickle=False)
+    if odom_ns.ndim != 1 or len(odom_ns) < 1:
+        raise InputError(f"recording {rec.id[:12]}: trajectory_ns.npy holds no odometry stamp")
+    return {"run_start_s": float(t[0]), "run_end_s": float(t[-1]), "first_odometry_ns": int(odom_ns[0])}
 
 
 def shards_of(frames: list[dict], cfg: Config) -> list[list[dict]]:
@@ -503,8 +570,9 @@ class ShardRenderer:
 
     # -- rays -> samples -> outputs
     def _render_rays(self, origins: np.ndarray, dirs: np.ndarray, valid: np.ndarray, near: float, far: float,
-                     frame_index: int, camera=None, cam_to_world=None) -> dict[str, np.ndarray]:
-        """Render world rays ``(N, 3)``: rgb (N, 3), range (N,), accumulation (N,), instance (N,)."""
+                     posed: list, camera=None, cam_to_world=None) -> dict[str, np.ndarray]:
+        """Render world rays ``(N, 3)`` among the ``posed`` people (``HumanSet.joint_transforms``; [] for
+        nobody): rgb (N, 3), range (N,), accumulation (N,), instance (N,)."""
         import torch
 
         from nsim.rendering.rays import make_rays
@@ -516,8 +584,8 @@ class ShardRenderer:
         sc = self.model.sampler_cfg
         rays = make_rays(o, d, max(near, sc.near_m), min(far, sc.far_m),
                          self.model.aabb if sc.clip_rays_to_box else None)
-        people = (self.humans.visible(frame_index, o, d, camera, cam_to_world, cfg.culling, t_min=near, t_max=far,
-                                      valid=valid) if self.humans else [])
+        people = (self.humans.visible(posed, o, d, camera, cam_to_world, cfg.culling, t_min=near, t_max=far,
+                                      valid=valid) if self.humans and posed else [])
         if not people:
             out = render_rays(self.model, rays, cfg.method, self.grid, cfg.march, cfg.chunk_rays)
             instance = np.zeros(len(o), dtype=np.uint16)
@@ -558,15 +626,16 @@ class ShardRenderer:
         body = np.asarray(frame["body_to_world"], dtype=np.float64)
         i = frame["index"]
         row: dict[str, Any] = {"index": i}
+        posed = self.humans.joint_transforms(i) if self.humans else []
         for s in self.rig.sensors:
             o, d = s.rays(body)
             valid = np.isfinite(d).all(-1)
             if isinstance(s, CameraSensor):
-                res = self._render_rays(o, d, valid, 0.0, float("inf"), i, s.camera, s.world_pose(body))
+                res = self._render_rays(o, d, valid, 0.0, float("inf"), posed, s.camera, s.world_pose(body))
                 row[s.name] = self._write_camera(out_dir, s.name, i, s, res)
             elif isinstance(s, LidarSensor):
                 c = s.config
-                res = self._render_rays(o, d, valid, c.min_range_m, c.max_range_m, i)
+                res = self._render_rays(o, d, valid, c.min_range_m, c.max_range_m, posed)
                 row[s.name] = self._write_lidar(out_dir, s, i, res)
         return row
 
@@ -580,7 +649,7 @@ class ShardRenderer:
         d = np.where(valid[:, None], dirs_cam, [0.0, 0.0, 1.0]) @ c2w[:3, :3].T
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         o = np.broadcast_to(c2w[:3, 3], d.shape)
-        res = self._render_rays(o, d, valid, 0.0, float("inf"), frame["index"], cam, c2w)
+        res = self._render_rays(o, d, valid, 0.0, float("inf"), [], cam, c2w)
         h, w = cam.height, cam.width
         i = frame["index"]
         from nsim.io.exr import write_depth_exr
@@ -603,6 +672,7 @@ class ShardRenderer:
         path = out_dir / kind / name / f"{i:06d}"
         path.parent.mkdir(parents=True, exist_ok=True)
         s = self.streams[key]
+        posed = self.humans.joint_transforms_at(frame["people_time_s"]) if self.humans else []
         if kind == "lidar":
             from nsim.io.exr import read_points_exr
             from nsim.rendering.recording import point_directions, points_from_ranges
@@ -612,7 +682,7 @@ class ShardRenderer:
             dirs, valid = point_directions(xyz_rec)
             pose = np.asarray(frame["sensor_to_world"], dtype=np.float64)
             o = np.broadcast_to(pose[:3, 3], dirs.shape)
-            res = self._render_rays(o, dirs @ pose[:3, :3].T, valid, 0.0, float("inf"), i)
+            res = self._render_rays(o, dirs @ pose[:3, :3].T, valid, 0.0, float("inf"), posed)
             xyz = points_from_ranges(dirs, res["range"]).astype(np.float32)
             write_points_exr(path.with_suffix(".exr"), {"X": xyz[None, :, 0], "Y": xyz[None, :, 1], "Z": xyz[None, :, 2],
                                                          "range": res["range"].astype(np.float32)[None, :]})
@@ -620,11 +690,18 @@ class ShardRenderer:
         body = np.asarray(frame["body_to_world"], dtype=np.float64)
         o, d = s.rays(body)
         valid = np.isfinite(d).all(-1)
-        res = self._render_rays(o, d, valid, 0.0, float("inf"), i, s.camera, s.world_pose(body))
+        res = self._render_rays(o, d, valid, 0.0, float("inf"), posed, s.camera, s.world_pose(body))
         h, w = s.ray_shape
         if kind == "camera":
             write_image(path.with_suffix(".png"), to_uint8(s.expose(res["rgb"].reshape(h, w, 3))))
-            return {"stream": key, "index": i, "mean_accumulation": float(np.mean(res["acc"]))}
+            row = {"stream": key, "index": i, "mean_accumulation": float(np.mean(res["acc"]))}
+            if self.humans is not None:
+                from nsim.io.coco import write_instance_mask
+
+                (out_dir / "mask" / name).mkdir(parents=True, exist_ok=True)
+                write_instance_mask(out_dir / "mask" / name / f"{i:06d}.png", res["instance"].reshape(h, w))
+                row["people_px"] = int((res["instance"] > 0).sum())
+            return row
         depth = s.depth_from_range(res["range"].reshape(h, w)).astype(np.float32)  # inf stays inf, NaN stays NaN
         write_depth_exr(path.with_suffix(".exr"), depth, attributes={"nsim_depth": DEPTH_ATTRIBUTE["z"],
                                                                      "nsim_sensor": name})
@@ -733,25 +810,43 @@ class HumanSet:
 
     def joint_transforms(self, tick: int) -> list[tuple[int, np.ndarray]]:
         """``[(person k, joint_transforms (J, 4, 4))]`` at a tick, for people still in the run."""
+        a = self.arrays
+        return self._posed(a["position_m"][tick], a["heading_rad"][tick], a["gait_phase"][tick])
+
+    def joint_transforms_at(self, time_s: float) -> list[tuple[int, np.ndarray]]:
+        """``[(person k, joint_transforms (J, 4, 4))]`` at simulation time ``time_s``, between ticks too
+        (``nsim.rendering.recording.people_states_at``; on a tick: ``joint_transforms(tick)``); nobody
+        outside the run's span."""
+        from nsim.rendering.recording import people_states_at
+
+        a = self.arrays
+        present, pos, head, phase = people_states_at(a["time_s"], a["position_m"], a["heading_rad"], a["gait_phase"],
+                                                     time_s)
+        return self._posed(pos, head, phase)
+
+    def _posed(self, position_m: np.ndarray, heading_rad: np.ndarray, gait_phase: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """Every person with a finite ``position_m (P, 2)`` posed by its gait loop at ``heading_rad (P,)`` and
+        ``gait_phase (P,)``: ``[(person k, joint_transforms (J, 4, 4))]``."""
         from nsim.human.skeleton import forward_kinematics
 
         a = self.arrays
         out = []
-        for k in range(a["position_m"].shape[1]):
-            pos = a["position_m"][tick, k]
+        for k in range(len(position_m)):
+            pos = position_m[k]
             if not np.isfinite(pos).all():
                 continue
             height = float(a["height_m"][k])
             motion = str(a["motion"][k]) if "motion" in a else "walk"
             loop = self._loop(motion, height)
-            root, quats = loop.pose_at(np.array([a["gait_phase"][tick, k]]), pos[None], np.array([a["heading_rad"][tick, k]]))
+            root, quats = loop.pose_at(np.array([gait_phase[k]]), pos[None], np.array([heading_rad[k]]))
             T = forward_kinematics(loop.skeleton, quats[0], root[0])
             out.append((k, T))
         return out
 
-    def visible(self, tick: int, origins, dirs, camera, cam_to_world, culling: bool, t_min: float = 0.0,
-                t_max: float = math.inf, valid=None) -> list[dict]:
-        """People whose posed box the rays can see, with the ray mask to cast their samples on.
+    def visible(self, posed: list[tuple[int, np.ndarray]], origins, dirs, camera, cam_to_world, culling: bool,
+                t_min: float = 0.0, t_max: float = math.inf, valid=None) -> list[dict]:
+        """Of the ``posed`` people (``joint_transforms``), those whose posed box the rays can see, with the
+        ray mask to cast their samples on.
 
         With ``culling`` a person is dropped when the box's image rectangle misses a camera's frame
         (the cheap test, first), then when no ray meets the box within ``[t_min, t_max]`` m (the
@@ -762,7 +857,7 @@ class HumanSet:
 
         people = []
         o = d = None
-        for k, T in self.joint_transforms(tick):
+        for k, T in posed:
             model = self.models[k % len(self.models)]
             with torch.no_grad():
                 lo, hi = model.posed_box(torch.as_tensor(T, dtype=torch.float32)).reshape(2, 3).cpu().numpy()
@@ -926,12 +1021,13 @@ def _assemble_recording(out_dir: Path, inputs: Inputs, cfg: Config, frames: list
     """Recording mode's render.json (the contract in the module docstring) and previews."""
     recording = ctx.store.get(inputs.registration).manifest["inputs"]["recording"]
     per_stream = []
+    fields = ("index", "stamp_ns", "odom_time_ns", "sensor_to_world", "people_time_s")
     for st in streams:
         mine = [f for f in frames if f["stream"] == st["key"]]
         per_stream.append({"name": st["name"], "kind": st["kind"], "color": st["color"],
                            "skipped_outside_trajectory": st["skipped_outside_trajectory"],
-                           "frames": [{k: f[k] for k in ("index", "stamp_ns", "odom_time_ns", "sensor_to_world")}
-                                      for f in mine]})
+                           **({"people_outside_run": st["people_outside_run"]} if inputs.humans else {}),
+                           "frames": [{k: f[k] for k in fields if k in f} for f in mine]})
     meta: dict[str, Any] = {
         "mode": "recording",
         "recording": recording,
@@ -953,15 +1049,47 @@ def _assemble_recording(out_dir: Path, inputs: Inputs, cfg: Config, frames: list
         },
         "per_frame": rows,
     }
+    if inputs.humans:
+        meta["people"] = _recording_people(out_dir, inputs, cfg, streams, ctx)
+        meta["conventions"].update({
+            "people_time_s": "the run's simulation time whose people a frame shows: run_start_s + (odom_time_ns - "
+                             "first_odometry_ns) / 1e9 + people_time_offset_s (see people); outside the run: nobody",
+            "mask": "mask/<name>/NNNNNN.png per camera stream, 16-bit instance mask: 0 background, k + 1 = the "
+                    "trajectory's person k (its order in position_m)",
+            "boxes": "boxes/<name>.json per camera stream, COCO person boxes of the masks (file_name: the rendered "
+                     "camera/<name>/NNNNNN.png)"})
     (out_dir / "render.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
     by_stream = {st["key"]: [f["index"] for f in frames if f["stream"] == st["key"]] for st in streams}
     n = max(len(v) for v in by_stream.values())
     picked = [{"row": r} for r in range(n)]
     write_previews(out_dir, None, picked, cfg,
                    strip=lambda row: _recording_strip(out_dir, recording_dir, streams, by_stream, row["row"]))
-    return {"mode": "recording", "frames": len(frames), "humans": 0,
-            "streams": {st["key"]: len(by_stream[st["key"]]) for st in streams},
-            "skipped_outside_trajectory": sum(st["skipped_outside_trajectory"] for st in streams)}
+    summary = {"mode": "recording", "frames": len(frames), "humans": len(inputs.humans),
+               "streams": {st["key"]: len(by_stream[st["key"]]) for st in streams},
+               "skipped_outside_trajectory": sum(st["skipped_outside_trajectory"] for st in streams)}
+    if inputs.humans:
+        summary["people_outside_run"] = sum(st["people_outside_run"] for st in streams)
+    return summary
+
+
+def _recording_people(out_dir: Path, inputs: Inputs, cfg: Config, streams: list[dict], ctx: RunContext) -> dict[str, Any]:
+    """Recording mode with people: each camera stream's COCO boxes (``boxes/<name>.json``, from its masks)
+    and render.json's ``people`` entry (the trajectory, the humans, the time origin)."""
+    from nsim.io.coco import coco_from_mask_files, write_coco_json
+
+    (out_dir / "boxes").mkdir()
+    for st in streams:
+        if st["kind"] == "camera":
+            masks = sorted((out_dir / "mask" / st["name"]).glob("*.png"))
+            write_coco_json(out_dir / "boxes" / f"{st['name']}.json",
+                            coco_from_mask_files(masks, [f"camera/{st['name']}/{m.name}" for m in masks]))
+    clock = _people_clock(inputs, ctx, ctx.store.get(ctx.store.get(inputs.registration).manifest["inputs"]["recording"]))
+    return {"trajectory": inputs.trajectory, "humans": list(inputs.humans),
+            "people_time_offset_s": cfg.people_time_offset_s, **clock,
+            "people_outside_run": sum(st["people_outside_run"] for st in streams),
+            "rule": "people_time_s = run_start_s + (odom_time_ns - first_odometry_ns) / 1e9 + people_time_offset_s: "
+                    "people_time_offset_s 0 puts the run's first tick at the recording's first odometry stamp, as "
+                    "nsim capture robot-log records a run"}
 
 
 def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by_stream: dict[str, list[int]],

@@ -3,7 +3,13 @@ Spot's fisheye cameras with depth, one of them grey, and its LiDAR; a 30 ms came
 the odometry frame 30 deg and 1.1 m off the room's), imported, registered with its truth (a
 ``registration`` artifact published here, as register-log would write it: register-log's SfM is
 tested in test_register_log.py), rendered on a micro scene NeRF of the same room; the render
-against the log's truth and its recorded readings, the cache, and bad input."""
+against the log's truth and its recorded readings, the cache, and bad input.
+
+People: a log of an ``nsim simulate`` run of spot_run.json written by ``nsim capture robot-log`` (its
+clock: the run's first tick at 1.7e9 s), rendered with the run's people (one of them moved to cross
+in front of the robot, the others removed) drawn by a briefly trained human checkpoint; the person
+masks against the oracle's actor posed at each frame's true tick, with the default time origin and
+with a wrong one."""
 
 from __future__ import annotations
 
@@ -281,7 +287,8 @@ def _not_metric(store: Store) -> str:
      ["sensors:", "no stream 'back'", "camera/left"]),
     ("not metric", ["--recording", "registration/truth", "--scene", "NOT_METRIC"], ["scale is arbitrary"]),
     ("scaled", ["--recording", "registration/truth", "--set", "image_scale=0.5"], ["image_scale 0.5", "recorded sizes"]),
-    ("people", ["--recording", "registration/truth", "--humans", "scene/t"], ["--humans is not supported"]),
+    ("people without a run", ["--recording", "registration/truth", "--humans", "scene/t"],
+     ["--humans needs --trajectory"]),
     ("two modes", ["--recording", "registration/truth", "--poses", "capture/t"],
      ["exactly one of --trajectory, --poses or --recording"]),
     ("no scene", ["--recording", "registration/truth", "--scene", None], ["pass --scene"]),
@@ -333,3 +340,200 @@ def test_core_clock_poses_and_points():
     with pytest.raises(ValueError, match="'c'"):
         core.select_streams(keys, ("b", "c"))
     assert core.select_frames(np.array([0, 2, 4, 6, 8]), 3, 2).tolist() == [2, 4]
+
+
+# ---------------------------------------------------------------------------------- people
+PEOPLE_STRIDE, PEOPLE_TICKS = 5, 4  # the log records ticks 0, 5, 10, 15 of a 1 s run (dt 0.05 s)
+CROSS_X_M, CROSS_Y_M = 1.5, (1.0, -1.0)  # person 0's path in the robot's body frame over the run: x ahead, y left
+LATE_S = 0.6  # a wrong time origin: ticks 0 and 5 see the people of 0.6 and 0.85 s, ticks 10 and 15 none
+
+
+def _crossing(store: Store, traj: str) -> str:
+    """``traj`` with person 0 crossing in front of the robot (``CROSS_*``, facing its way) and the others gone."""
+    a = dict(np.load(store.get(traj).file("trajectory.npz"), allow_pickle=False))
+    poses, t = a["robot_pose_se3"], a["time_s"]
+    y = np.interp(t, [t[0], t[-1]], CROSS_Y_M)
+    a["position_m"] = np.full_like(a["position_m"], np.nan)
+    a["position_m"][:, 0] = np.einsum("tij,tj->ti", poses[:, :2, :2], np.stack([np.full_like(y, CROSS_X_M), y], -1)) \
+        + poses[:, :2, 3]
+    a["heading_rad"] = a["heading_rad"].copy()
+    a["heading_rad"][:, 0] = np.arctan2(poses[:, 1, 0], poses[:, 0, 0]) - np.pi / 2
+    with store.publish(kind="trajectory", stage="test_render_recording", version=1,
+                       key=store.action_key("test_crossing", 1, {}, {"trajectory": traj}), config={},
+                       inputs={"trajectory": traj}) as out:
+        np.savez(out.dir / "trajectory.npz", **a)
+    store.set_ref("trajectory/crossing", out.ref)
+    return out.ref
+
+
+@pytest.fixture(scope="module")
+def people(world, tmp_path_factory):
+    store, _, _ = world
+    root = tmp_path_factory.mktemp("render_recording_people")
+    w = ["--workspace", str(store.root)]
+    assert main([*w, "simulate", "--scenario", "configs/scenarios/spot_run.json", "--preset", "tiny", "--set",
+                 "max_duration_s=1.0", "--set", "video=false", "--tag", "trajectory/run"]) == 0
+    bag = root / "run"
+    assert main([*w, "capture", "robot-log", "trajectory/run", "--preset", "tiny", "--set", "sensors=[frontleft]",
+                 "--set", f"tick_stride={PEOPLE_STRIDE}", "--set", f"max_ticks={PEOPLE_TICKS}", "--out", str(bag)]) == 0
+    assert main([*w, "import-log", str(bag), "--tag", "recording/people"]) == 0
+    truth = json.loads((root / "run.truth.json").read_text())
+    rec, poses = store.resolve("recording/people"), store.resolve("capture/t")
+    _registration(store, rec, poses, truth["stamps_ns"], np.array(truth["body_to_world"]), np.array(truth["odom_to_world"]),
+                  truth["clock_offset_s"], "people")
+    _crossing(store, store.resolve("trajectory/run"))
+    assert main([*w, "capture", "synth", "--preset", "tiny", "--actor", "--set", "n_frames=12", "--set", "supersample=1",
+                 "--set", "video=false", "--tag", "capture/actor"]) == 0
+    assert main([*w, "--device", "cpu", "train-human", "--capture", "capture/actor", "--preset", "tiny", "--steps", "60",
+                 "--tag", "human/t"]) == 0
+    people_args = ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--set", "sensors=[camera/frontleft]"]
+    assert render(store, "registration/people", *people_args, tag="render/people") == 0
+    assert render(store, "registration/people", *people_args, "--set", f"people_time_offset_s={LATE_S}",
+                  tag="render/people-late") == 0
+    return store, truth, people_args
+
+
+def _truth_masks(store: Store, truth: dict) -> list[np.ndarray]:
+    """Per recorded frame, the oracle's person mask: the actor posed at the frame's tick (trajectory mode's
+    ``HumanSet.joint_transforms``), seen by the rig's front-left camera at the log's true body pose."""
+    from nsim.stages.render import HumanSet
+    from nsim.synth.actor import Actor
+    from nsim.synth.oracle import PlacedActor, RoomOracle
+
+    arrays = dict(np.load(store.get(store.resolve("trajectory/crossing")).file("trajectory.npz"), allow_pickle=False))
+    people = HumanSet([], arrays, "cpu")
+    cam = adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(sensors=("frontleft",), image_scale=0.1)).sensors[0]
+    oracle = RoomOracle(make_room("robot-lab", seed=0))
+    masks = []
+    for i in range(PEOPLE_TICKS):
+        actors = [PlacedActor(Actor(float(arrays["height_m"][k]), seed=0), T, instance_id=k + 1)
+                  for k, T in people.joint_transforms(i * PEOPLE_STRIDE)]
+        view = oracle.render_gt(cam.camera, cam.world_pose(np.array(truth["body_to_world"][i])), 1, actors=actors)
+        masks.append(view.instance_mask)
+    return masks
+
+
+def _masks(store: Store, tag: str) -> list[np.ndarray]:
+    from nsim.io.coco import read_instance_mask
+
+    art = store.get(store.resolve(tag))
+    return [np.asarray(read_instance_mask(art.file(f"mask/frontleft/{i:06d}.png"))) for i in range(PEOPLE_TICKS)]
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def _centroid(m: np.ndarray) -> np.ndarray:
+    v, u = np.nonzero(m)
+    return np.array([u.mean(), v.mean()])
+
+
+def test_people_render_where_the_oracle_sees_them(people):
+    """With the default time origin (the run's first tick at the recording's first odometry stamp, as capture
+    robot-log records) the person's mask overlaps the oracle's at every frame and follows it across the image;
+    with the origin 0.6 s late it does not, and the frames past the run's end have nobody, counted. Measured:
+    IoU 0.45-0.57 (the micro human NeRF draws a wider person: 150-220 px against the oracle's 90-125),
+    centroids within 1.8 px of the oracle's, which move 25 px over the run; late: IoU 0-0.03."""
+    store, truth, _ = people
+    art = store.get(store.resolve("render/people"))
+    meta = json.loads(art.file("render.json").read_text())
+    assert meta["people"]["humans"] == [store.resolve("human/t")]
+    assert meta["people"]["trajectory"] == store.resolve("trajectory/crossing")
+    assert meta["people"]["people_time_offset_s"] == 0.0 and meta["people"]["people_outside_run"] == 0
+    assert meta["people"]["first_odometry_ns"] == truth["stamps_ns"][0]
+    (st,) = meta["streams"]
+    ticks = np.arange(PEOPLE_TICKS) * PEOPLE_STRIDE
+    run_t = np.load(store.get(store.resolve("trajectory/crossing")).file("trajectory.npz"))["time_s"]
+    np.testing.assert_allclose([f["people_time_s"] for f in st["frames"]], run_t[ticks], atol=1e-6)  # the log: float64 s
+    truth_masks = [m == 1 for m in _truth_masks(store, truth)]
+    sim = [m == 1 for m in _masks(store, "render/people")]
+    late = [m == 1 for m in _masks(store, "render/people-late")]
+    assert all(m.sum() > 20 for m in truth_masks)  # the person is in view of every frame
+    ious = [_iou(a, b) for a, b in zip(sim, truth_masks, strict=True)]
+    late_ious = [_iou(a, b) for a, b in zip(late[:2], truth_masks[:2], strict=True)]
+    assert min(ious) > 0.3 and max(late_ious) < 0.15, (ious, late_ious)
+    # the person crosses the view: the mask's centroid moves with the oracle's, a few pixels from it
+    c_sim, c_true = np.stack([_centroid(m) for m in sim]), np.stack([_centroid(m) for m in truth_masks])
+    assert np.abs(c_true[-1] - c_true[0]).max() > 15
+    assert np.linalg.norm(c_sim - c_true, axis=-1).max() < 3.0, (c_sim, c_true)
+    # the late origin: ticks 10 and 15 see simulation times past the run's end: nobody, counted
+    meta_late = json.loads(store.get(store.resolve("render/people-late")).file("render.json").read_text())
+    assert meta_late["people"]["people_outside_run"] == 2 and meta_late["streams"][0]["people_outside_run"] == 2
+    assert all(m.sum() > 0 for m in late[:2]) and not any(m.any() for m in late[2:])
+    # COCO boxes of the masks, the mirror unchanged beside them
+    boxes = json.loads(art.file("boxes/frontleft.json").read_text())
+    assert len(boxes["annotations"]) == PEOPLE_TICKS
+    assert sorted(im["file_name"] for im in boxes["images"]) == [f"camera/frontleft/{i:06d}.png" for i in range(PEOPLE_TICKS)]
+    assert _files(art.path) == [f"camera/frontleft/{i:06d}.png" for i in range(PEOPLE_TICKS)]
+
+
+@pytest.mark.parametrize("case, args, fragments", [
+    ("run without people", ["--trajectory", "trajectory/crossing"], ["only supplies the people", "pass --humans"]),
+    ("no overlap", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--set", "people_time_offset_s=-5"],
+     ["spans simulation time [0, 1] s", "no frame overlaps the run"]),
+    ("a rig", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--rig", "configs/robots/spot.yaml"],
+     ["a recording renders its own recorded sensors"]),
+])
+def test_bad_people_input_is_one_line_and_publishes_nothing(people, capsys, case, args, fragments):
+    store, _, _ = people
+    before = set(store.all_ids())
+    capsys.readouterr()
+    code = main(["--workspace", str(store.root), "--device", "cpu", "render", "--recording", "registration/people",
+                 "--scene", "scene/t", *args])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("WARNING")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for f in fragments:
+        assert f in lines[0], lines[0]
+    assert set(store.all_ids()) == before
+
+
+def test_core_people_clock_and_states():
+    from nsim.rendering import recording as core
+
+    # the run's first tick at the first odometry stamp; the difference taken in integer ns
+    t = core.people_time_s(np.array([1_700_000_000_250_000_000, 1_699_999_999_000_000_000]), 1_700_000_000_000_000_000,
+                           2.0, 0.5)
+    np.testing.assert_allclose(t, [2.75, 1.5], atol=1e-12)
+    time_s = np.array([0.0, 1.0, 2.0])
+    pos = np.array([[[0.0, 0.0], [5.0, 5.0]], [[2.0, 4.0], [np.nan, np.nan]], [[4.0, 4.0], [7.0, 7.0]]])
+    head = np.array([[np.pi - 0.1, 0.0], [-np.pi + 0.1, 0.0], [0.0, 0.0]])
+    phase = np.array([[0.9, 0.0], [0.1, 0.0], [0.3, 0.0]])
+    # on a tick: that tick, exactly; a person absent there is absent
+    present, p, h, g = core.people_states_at(time_s, pos, head, phase, 1.0)
+    assert present.tolist() == [True, False] and p[0].tolist() == [2.0, 4.0] and h[0] == head[1, 0] and g[0] == 0.1
+    assert np.isnan(p[1]).all() and np.isnan(h[1]) and np.isnan(g[1])
+    # a quarter of the way: linear position, the heading across +-pi along the short arc, the phase through 1
+    present, p, h, g = core.people_states_at(time_s, pos, head, phase, 0.25)
+    assert present.tolist() == [True, False]  # person 1 is missing at tick 1: absent between 0 and 1
+    np.testing.assert_allclose(p[0], [0.5, 1.0])
+    np.testing.assert_allclose(h[0], np.pi - 0.05)
+    np.testing.assert_allclose(g[0], 0.95)
+    present, p, _, g = core.people_states_at(time_s, pos, head, phase, 1.75)
+    assert present.tolist() == [True, False]
+    np.testing.assert_allclose(p[0], [3.5, 4.0])
+    np.testing.assert_allclose(g[0], 0.25)
+    # outside the run: nobody
+    for q in (-0.01, 2.01):
+        assert not core.people_states_at(time_s, pos, head, phase, q)[0].any()
+
+
+def test_people_between_ticks_pose_like_the_ticks(people):
+    """``HumanSet.joint_transforms_at`` on a tick's time is ``joint_transforms`` of that tick, bit for bit; half
+    way between two ticks the root lies half way between theirs."""
+    from nsim.stages.render import HumanSet
+
+    store, _, _ = people
+    arrays = dict(np.load(store.get(store.resolve("trajectory/crossing")).file("trajectory.npz"), allow_pickle=False))
+    hs = HumanSet([], arrays, "cpu")
+    t = arrays["time_s"]
+    for tick in (0, 7, len(t) - 1):
+        (k, a), = hs.joint_transforms(tick)
+        (k2, b), = hs.joint_transforms_at(float(t[tick]))
+        assert k == k2 == 0 and np.array_equal(a, b)
+    (_, mid), = hs.joint_transforms_at(float(t[3] + t[4]) / 2)
+    (_, a), (_, b) = hs.joint_transforms(3)[0], hs.joint_transforms(4)[0]
+    np.testing.assert_allclose(mid[0, :2, 3], (a[0, :2, 3] + b[0, :2, 3]) / 2, atol=0.02)
+    assert hs.joint_transforms_at(float(t[-1]) + 0.01) == []
