@@ -24,6 +24,8 @@ from tests.test_paper import MICRO_TRAIN
 
 REPO = Path(__file__).resolve().parents[1]
 
+AGREE_PSNR_DB = 1.0  # raw spot-rgb PSNR, sim vs recording against sim vs oracle
+
 
 def load_paper():
     spec = importlib.util.spec_from_file_location("paper_pipeline", REPO / "pipelines" / "paper.py")
@@ -87,6 +89,11 @@ def test_recording_path_registers_renders_and_scores_the_log(tmp_path, monkeypat
     rows = paper.agreement(run.oracle, run.tables)
     psnr = next(r for r in rows if r["table"] == "spot-rgb" and r["metric"] == "PSNR [dB]")
     assert psnr["diff"] == pytest.approx(psnr["recording"] - psnr["oracle"])
+    # The stated tolerance: the recording's render scored against the recording, and the twin (the same
+    # sensors at the same ticks from the true trajectory) against the oracle, agree within AGREE_PSNR_DB
+    # (the log's faults and the registration are all that differ;
+    # +0.07 dB measured by bench/robot_log.py --quick, +0.13 dB at --size small in docs/results.md)
+    assert abs(psnr["diff"]) < AGREE_PSNR_DB, psnr
     assert next(r for r in rows if r["table"] == "lidar")["oracle"] is None
     assert "sim vs recording" in paper.agreement_text(rows)
 
