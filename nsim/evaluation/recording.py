@@ -37,6 +37,7 @@ import numpy as np
 from nsim.errors import InputError, NsimError
 from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, uint8_rgb
 from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence
+from nsim.rendering.recording import RegisteredTrajectory, read_registration
 
 KINDS = ("camera", "depth", "lidar")
 
@@ -64,24 +65,6 @@ class Recording:
         if not p.is_file():
             raise InputError(f"recording {self.short}: has no file {rel}")
         return p
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class RegisteredTrajectory:
-    """A registration's ``trajectory_world.tum``: body_to_world (N, 4, 4) at int64 ns on the odometry clock."""
-
-    id: str
-    stamps_ns: np.ndarray
-    body_to_world: np.ndarray
-    clock_offset_s: float
-
-    def sensor_poses(self, odom_ns: np.ndarray, sensor_to_body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``inside (N,)`` and the sensor's world poses ``(N, 4, 4)`` at odometry times ``odom_ns`` (NaN
-        outside the trajectory's span): ``nsim.rendering.recording.sensor_poses``, as the render placed them."""
-        from nsim.rendering.recording import sensor_poses
-
-        inside, _, sensor_to_world = sensor_poses(odom_ns, self.stamps_ns, self.body_to_world, sensor_to_body)
-        return inside, sensor_to_world
 
 
 def _artifact(store, art_id: Any, kind: str, what: str):
@@ -113,25 +96,13 @@ def load_recording(store, r: RenderData) -> Recording:
 
 
 def load_registration(store, r: RenderData, recording: Recording) -> RegisteredTrajectory:
-    from nsim.io.tum import read_tum
-
     art = _artifact(store, r.meta.get("registration"), "registration", f"render {r.short}: render.json")
-    doc = _json(art.file("registration.json"), f"registration {art.id[:12]}: registration.json")
-    registered = doc.get("inputs", {}).get("recording")
+    reg = read_registration(art.path, art.id[:12])
+    registered = reg.doc.get("inputs", {}).get("recording")
     if registered != recording.id:
         raise InputError(f"render {r.short}: its registration {art.id[:12]} registers recording "
                          f"{str(registered)[:12]}, not the render's recording {recording.short}")
-    path = art.path / "trajectory_world.tum"
-    if not path.is_file():
-        raise InputError(f"registration {art.id[:12]}: has no trajectory_world.tum")
-    traj = read_tum(path)
-    ns_path = art.path / "trajectory_world_ns.npy"
-    stamps = (np.load(ns_path, allow_pickle=False).astype(np.int64) if ns_path.is_file()
-              else np.round(traj.timestamps_s * 1e9).astype(np.int64))
-    if len(stamps) != len(traj) or len(traj) < 2:
-        raise InputError(f"registration {art.id[:12]}: trajectory_world has {len(traj)} poses and {len(stamps)} "
-                         "stamps (two or more, one each)")
-    return RegisteredTrajectory(art.id, stamps, traj.poses_se3(), float(doc.get("clock_offset_s", 0.0)))
+    return reg
 
 
 def read_recorded_rgb(path: Path) -> np.ndarray:
@@ -294,7 +265,7 @@ class RecordingTruth(GroundTruth):
             odom_ns = odometry_time_ns(stamps, reg.clock_offset_s, True)
             given = [f.get("odom_time_ns") is not None for f in frames]  # as the render moved them, when it says
             odom_ns[given] = [int(f["odom_time_ns"]) for f, g in zip(frames, given, strict=True) if g]
-            inside, cam_to_world = reg.sensor_poses(odom_ns, _extrinsic(st))
+            inside, _, cam_to_world = reg.sensor_poses(odom_ns, _extrinsic(st))
             if not inside.any():
                 raise InputError(f"render {r.short}: no frame of camera {st.name} lies in the time span of "
                                  f"registration {reg.id[:12]}'s trajectory (odometry time "

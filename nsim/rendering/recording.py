@@ -32,6 +32,12 @@ returns that tick's state exactly; outside ``[time_s[0], time_s[-1]]`` nobody is
 
 from __future__ import annotations
 
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
 KINDS = ("camera", "depth", "lidar")
@@ -158,3 +164,46 @@ def people_states_at(time_s: np.ndarray, position_m: np.ndarray, heading_rad: np
     h = np.mod(head[i] + w * dh + np.pi, 2.0 * np.pi) - np.pi
     g = np.mod(phase[i] + w * np.mod(phase[i + 1] - phase[i], 1.0), 1.0)
     return present, np.where(present[:, None], p, np.nan), np.where(present, h, np.nan), np.where(present, g, np.nan)
+
+
+@dataclass(frozen=True)
+class RegisteredTrajectory:
+    """A ``registration`` artifact (``nsim register-log``) as its readers use it: ``body_to_world (T, 4, 4)``
+    at ``stamps_ns (T,)`` int64 on the odometry clock (increasing, ``T >= 1``), the cameras'
+    ``clock_offset_s`` and ``registration.json`` itself (``doc``); ``id`` names it in errors."""
+
+    id: str
+    stamps_ns: np.ndarray
+    body_to_world: np.ndarray
+    clock_offset_s: float
+    doc: dict[str, Any]
+
+    def sensor_poses(self, odom_ns: np.ndarray, sensor_to_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`sensor_poses` on this trajectory."""
+        return sensor_poses(odom_ns, self.stamps_ns, self.body_to_world, sensor_to_body)
+
+
+def read_registration(directory: str | Path, ident: str) -> RegisteredTrajectory:
+    """The registration artifact in ``directory`` (``registration.json``, ``trajectory_world.tum`` and
+    ``trajectory_world_ns.npy``), checked: a finite clock offset, one stamp per pose, increasing.
+    ``ident`` names it in the one-line ``InputError``."""
+    from nsim.errors import InputError
+    from nsim.io.tum import read_tum
+
+    d = Path(directory)
+    for name in ("registration.json", "trajectory_world.tum", "trajectory_world_ns.npy"):
+        if not (d / name).is_file():
+            raise InputError(f"registration {ident}: has no {name}")
+    try:
+        doc = json.loads((d / "registration.json").read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"registration {ident}: registration.json is not readable JSON ({e})") from None
+    offset_s = doc.get("clock_offset_s") if isinstance(doc, dict) else None
+    if isinstance(offset_s, bool) or not isinstance(offset_s, int | float) or not math.isfinite(offset_s):
+        raise InputError(f"registration {ident}: registration.json has no finite clock_offset_s")
+    stamps = np.load(d / "trajectory_world_ns.npy", allow_pickle=False)
+    body_to_world = read_tum(d / "trajectory_world.tum").poses_se3()
+    if stamps.ndim != 1 or len(stamps) != len(body_to_world) or len(stamps) < 1 or np.any(np.diff(stamps) <= 0):
+        raise InputError(f"registration {ident}: trajectory_world_ns.npy and trajectory_world.tum disagree, are "
+                         "empty or are not increasing")
+    return RegisteredTrajectory(ident, stamps.astype(np.int64), body_to_world, float(offset_s), doc)

@@ -346,7 +346,6 @@ def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[d
     ``people_outside_run``). Every check before any rendering."""
     import cv2
 
-    from nsim.io.tum import read_tum
     from nsim.rendering import recording as core
     from nsim.workspace.store import safe_relpath
 
@@ -359,15 +358,8 @@ def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[d
                          f"({', '.join(core.KINDS)})")
     store = ctx.store
     reg = store.get(inputs.registration)
-    reg_doc = json.loads(reg.file("registration.json").read_text())
-    traj_ns = np.load(reg.file("trajectory_world_ns.npy"), allow_pickle=False)
-    body_to_world = read_tum(reg.file("trajectory_world.tum")).poses_se3()
-    if len(traj_ns) != len(body_to_world) or len(traj_ns) < 1 or np.any(np.diff(traj_ns) <= 0):
-        raise InputError(f"registration {reg.id[:12]}: trajectory_world_ns.npy and trajectory_world.tum disagree, "
-                         "are empty or not increasing")
-    offset_s = reg_doc.get("clock_offset_s")
-    if not isinstance(offset_s, (int, float)) or not math.isfinite(offset_s):
-        raise InputError(f"registration {reg.id[:12]}: registration.json has no finite clock_offset_s")
+    registered = core.read_registration(reg.path, reg.id[:12])
+    reg_doc, offset_s = registered.doc, registered.clock_offset_s
     if abs(float(reg_doc.get("scale", 1.0)) - 1.0) > 0.01:
         log.warning("render --recording: registration %s has scale %g: the sensors' mounts stay in metres",
                     reg.id[:12], reg_doc["scale"])
@@ -393,7 +385,7 @@ def plan_recording(inputs: Inputs, cfg: Config, ctx: RunContext) -> tuple[list[d
         pick = core.select_frames(indices, cfg.start, cfg.tick_stride)
         mount = np.asarray(entry["sensor_to_body"], dtype=np.float64)
         odom = core.odometry_time_ns(stamps[pick], offset_s, kind in cfg.camera_clock_kinds)
-        inside, body, sensor = core.sensor_poses(odom, traj_ns, body_to_world, mount)
+        inside, body, sensor = registered.sensor_poses(odom, mount)
         rows = [{"stream": key, "index": int(indices[p]), "stamp_ns": int(stamps[p]), "odom_time_ns": int(t),
                  "body_to_world": b.tolist(), "sensor_to_world": w.tolist()}
                 for p, t, b, w, ok in zip(pick, odom, body, sensor, inside, strict=True) if ok]

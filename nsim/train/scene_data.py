@@ -711,19 +711,10 @@ def read_recorded_frames(registration_dir: str | os.PathLike, recording_dir: str
     import cv2
 
     from nsim.geometry.cameras import Camera
-    from nsim.io.tum import read_tum
-    from nsim.rendering.recording import odometry_time_ns, sensor_poses
+    from nsim.rendering.recording import odometry_time_ns, read_registration
 
     reg_dir, rec_dir = Path(registration_dir), Path(recording_dir)
-    doc = json.loads((reg_dir / "registration.json").read_text())
-    offset_s = doc.get("clock_offset_s")
-    if isinstance(offset_s, bool) or not isinstance(offset_s, int | float) or not math.isfinite(offset_s):
-        raise InputError(f"{label}: registration.json has no finite clock_offset_s")
-    traj_ns = np.load(reg_dir / "trajectory_world_ns.npy", allow_pickle=False)
-    body_to_world = read_tum(reg_dir / "trajectory_world.tum").poses_se3()
-    if traj_ns.ndim != 1 or len(traj_ns) != len(body_to_world) or len(traj_ns) < 1 or np.any(np.diff(traj_ns) <= 0):
-        raise InputError(f"{label}: trajectory_world_ns.npy and trajectory_world.tum disagree, are empty or are "
-                         "not increasing")
+    registered = read_registration(reg_dir, label)
     streams = {k.split("/", 1)[1]: v for k, v in json.loads((rec_dir / "recording.json").read_text())["streams"].items()
                if v.get("kind") == "camera"}
     if len(set(cameras)) < len(cameras):
@@ -750,9 +741,8 @@ def read_recorded_frames(registration_dir: str | os.PathLike, recording_dir: str
             if first.ndim != 3 or first.dtype != np.uint8:
                 raise InputError(f"{label}: camera {name!r} records {'grey' if first.ndim == 2 else first.dtype} "
                                  "images; a scene trains on colour (choose colour cameras with --recording-camera)")
-        odom = odometry_time_ns(stamps, float(offset_s), on_camera_clock=True)
-        inside, _, cam_to_world = sensor_poses(odom, traj_ns, body_to_world,
-                                               np.asarray(entry["sensor_to_body"], dtype=np.float64))
+        odom = odometry_time_ns(stamps, registered.clock_offset_s, on_camera_clock=True)
+        inside, _, cam_to_world = registered.sensor_poses(odom, np.asarray(entry["sensor_to_body"], dtype=np.float64))
         recorded[name], outside[name] = len(indices), int((~inside).sum())
         frames += [RecordedFrame(name, int(j), int(indices[j]), int(stamps[j]), camera, cam_to_world[j], paths[j],
                                  f"recording:{entry['dir']}/{int(indices[j]):06d}.png")
