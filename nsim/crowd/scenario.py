@@ -564,7 +564,12 @@ def _resolve_scene(scene: dict, store, fail) -> tuple[dict, str | None, list[np.
         art_id = store.resolve(ref, kind="scene-checkpoint")
     except NsimError as exc:
         raise fail("scene.checkpoint", str(exc)) from None
-    occ = store.get(art_id).path / "occupancy.json"
+    art = store.get(art_id).path
+    occ = art / "occupancy.json"
+    if not occ.is_file() and (art / "scene.json").is_file():
+        why = json.loads((art / "scene.json").read_text()).get("walkable_map_why_not")
+        if why:
+            raise fail("scene.checkpoint", f"scene-checkpoint {art_id[:12]} has no walkable map: {why}")
     return {"checkpoint": art_id}, art_id, *read_occupancy(occ, f"scene.checkpoint {ref!r}", fail)
 
 

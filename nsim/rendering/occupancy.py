@@ -45,8 +45,11 @@ def grid_shape(aabb: np.ndarray | Tensor, cell_m: float) -> tuple[int, int, int]
 @torch.no_grad()
 def max_density_on_grid(density_fn: DensityFn, lo: np.ndarray, hi: np.ndarray, shape: tuple[int, ...],
                         samples_per_cell: int, generator: torch.Generator | None, chunk: int,
-                        device: str | torch.device = "cpu") -> Tensor:
-    """Max of ``density_fn`` over the centre + ``samples_per_cell - 1`` jittered points of every cell: ``shape`` float."""
+                        device: str | torch.device = "cpu", skip: OccupancyGrid | None = None) -> Tensor:
+    """Max of ``density_fn`` over the centre + ``samples_per_cell - 1`` jittered points of every cell: ``shape`` float.
+
+    ``skip``: an occupancy grid baked from the same field at a lower density: points in its empty
+    cells count as density 0 without evaluating the field (empty-space skipping, as the renderer's)."""
     lo_t = torch.as_tensor(lo, dtype=torch.float32, device=device)
     cell = (torch.as_tensor(hi, dtype=torch.float32, device=device) - lo_t) / torch.tensor(shape, dtype=torch.float32, device=device)
     axes = [torch.arange(n, dtype=torch.float32, device=device) for n in shape]
@@ -61,7 +64,14 @@ def max_density_on_grid(density_fn: DensityFn, lo: np.ndarray, hi: np.ndarray, s
             offset = torch.rand(ijk.shape, generator=generator, device=generator.device).to(device)
         x = lo_t + (ijk + offset) * cell
         for a in range(0, x.shape[0], chunk):
-            best[a : a + chunk] = torch.maximum(best[a : a + chunk], density_fn(x[a : a + chunk]).float())
+            xs = x[a : a + chunk]
+            if skip is None:
+                best[a : a + chunk] = torch.maximum(best[a : a + chunk], density_fn(xs).float())
+                continue
+            keep = torch.nonzero(skip.query(xs), as_tuple=True)[0]
+            if len(keep):
+                part = best[a : a + chunk]
+                part[keep] = torch.maximum(part[keep], density_fn(xs[keep]).float())
     return best.view(*shape)
 
 
@@ -536,7 +546,7 @@ def observed_columns(sigma: Tensor, density_threshold: float, lo: np.ndarray, hi
 def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple[float, float], cell_m: float,
                  density_threshold: float, samples_per_cell: int = 2, generator: torch.Generator | None = None,
                  chunk: int = 1 << 16, device: str | torch.device = "cpu", views: CameraViews | None = None,
-                 depth_pixels: int = OBSTACLE_DEPTH_PIXELS) -> ObstacleMap:
+                 depth_pixels: int = OBSTACLE_DEPTH_PIXELS, skip: OccupancyGrid | None = None) -> ObstacleMap:
     """2D obstacles over the scene box's xy extent: density above ``density_threshold`` in the height band.
 
     With ``views`` (the training cameras), also which cells were observed (``observed_columns``):
@@ -549,6 +559,9 @@ def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple
     haze in the air, and the soft front a NeRF draws a few centimetres before a surface, where rays
     grazing the surface stop: the carving decides at the cell's centre, as the ground truth does).
     Without views, the density alone decides. Observed follows the transmittance.
+    ``skip``: the scene's occupancy grid (baked at a density far below ``density_threshold``): the
+    field is not evaluated in its empty cells (they count as density 0: below the threshold, and
+    too thin to stop a ray).
     """
     aabb_np = np.asarray(torch.as_tensor(aabb).cpu(), dtype=np.float64)
     z_lo, z_hi = float(band_m[0]), float(band_m[1])
@@ -567,7 +580,7 @@ def obstacle_map(density_fn: DensityFn, aabb: Tensor | np.ndarray, band_m: tuple
     lo = np.array([aabb_np[0, 0], aabb_np[0, 1], z_lo - below * dz])
     hi = np.array([aabb_np[0, 0] + nx * cell_m, aabb_np[0, 1] + ny * cell_m, z_hi + above * dz])
     dens = max_density_on_grid(density_fn, lo, hi, (nx, ny, below + nz + above), samples_per_cell, generator,
-                               chunk, device)
+                               chunk, device, skip)
     dense = (dens[:, :, below : below + nz] > density_threshold).cpu().numpy()
     observed = None
     if views is not None:

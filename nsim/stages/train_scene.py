@@ -23,7 +23,8 @@ Artifact layout (see ``nsim.train.scene.export_scene``)::
     bounds.json                the scene box (world metres, z up; ``"metric": false`` and no metres when
                                the poses' scale is arbitrary), near / far
     occupancy_grid.npy/.json   3D occupancy baked from the density (empty-space skipping)
-    obstacles.png/.json        2D obstacle map and polygons in a height band (the simulator's map)
+    obstacles.png/.json        2D obstacle map and polygons in a height band (the simulator's map; with
+                               occupancy.json, obstacle_cells.*, map.yaml/.pgm: metric scenes only)
     curves.png, history.json   training loss / PSNR against steps
     eval/frame_NNNNN.png       held-out renders beside ground truth at ``eval.image_side``; eval.json
                                their PSNR / SSIM / LPIPS (mean appearance embedding), the left-half
@@ -32,8 +33,9 @@ Artifact layout (see ``nsim.train.scene.export_scene``)::
 Training runs on copies of the images shrunk to ``data.max_image_side`` (intrinsics scaled
 exactly); held-out scoring renders at ``eval.image_side`` (0: as captured), chunk by chunk.
 Poses of arbitrary scale (``report.json`` / ``transforms.json`` say so): the config's metre
-lengths are scaled to the scene's size (``nsim.train.scene_data.units_per_metre``) and scene.json
-and bounds.json say ``"metric": false``.
+lengths are scaled to the scene's size (``nsim.train.scene_data.units_per_metre``), scene.json
+and bounds.json say ``"metric": false``, and no walkable map is made (scene.json's
+``walkable_map_why_not`` says why and how to give a scale; ``nsim simulate`` repeats it).
 
 Resume: checkpoints go to ``<workspace>/tmp/train_scene.<key>.resume/last.pt`` every
 ``output.checkpoint_every`` steps. A run that is killed and started again with the same
@@ -65,7 +67,9 @@ STAGE = "train_scene"
 # 3: shrunk training images, scoring at eval.image_side with LPIPS and the half-image protocol, scale record
 # 4: the walkable map from the training rays (hits, carved haze; obstacle_density 1/m), depth/mask supervision keys
 # 6: the walkable map's rays followed only near the band, depth maps sized by pixel count (portrait photos)
-VERSION = 6
+# 7: held-out appearance codes fitted together (the same fits, one batch), the walkable map skips the
+#    occupancy grid's empty cells (the same map), and a scene of arbitrary scale gets no walkable map
+VERSION = 7
 
 log = logging.getLogger(__name__)
 

@@ -81,6 +81,10 @@ from nsim.train.scene_eval import (
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = 1
+#: Why a scene of arbitrary scale has no walkable map (scene.json's ``walkable_map``; nsim simulate says it too).
+NO_MAP_WITHOUT_SCALE = ("the poses' scale is arbitrary, so a robot's height band and a floor mean nothing in them; "
+                        "give nsim reconstruct a scale (--reference, --camera-height or --known-distance; --metric "
+                        "for an import whose poses are metric) and train again")
 DIRS_TABLE_MAX_BYTES = 256 << 20  # per-camera pixel-direction tables above this: directions per batch instead
 
 
@@ -857,9 +861,10 @@ def bake_occupancy(trainer: SceneTrainer):
 
 
 @torch.no_grad()
-def bake_obstacles(trainer: SceneTrainer):
+def bake_obstacles(trainer: SceneTrainer, grid=None):
     """The 2D obstacle map at ``output.obstacle_band_m`` (world z, metres), with the cells the training
-    views observed (their poses as trained, pose refinement included; unobserved cells are unknown)."""
+    views observed (their poses as trained, pose refinement included; unobserved cells are unknown).
+    ``grid``: the scene's occupancy grid (:func:`bake_occupancy`): the field is not evaluated in its empty cells."""
     from nsim.rendering.occupancy import CameraViews, obstacle_map
 
     out = trainer.cfg.output
@@ -874,7 +879,7 @@ def bake_obstacles(trainer: SceneTrainer):
                         trainer.cfg.sampler.near_m, trainer.cfg.sampler.far_m)
     return obstacle_map(lambda x: model.field.density(x)[0], trainer.aabb, out.obstacle_band_m, out.obstacle_cell_m,
                         out.obstacle_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device,
-                        views=views)
+                        views=views, skip=grid)
 
 
 def plot_curves(path: Path, history: list[dict[str, float]]) -> None:
@@ -910,7 +915,8 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
 
     Files: ``model.pt`` + ``scene.json`` (weights and what rebuilds the model: configs, scene
     box, hash backend, training images), ``bounds.json``, ``occupancy_grid.npy`` + ``.json`` (3D grid),
-    ``obstacles.png`` + ``obstacles.json`` (2D map and polygons at the height band),
+    ``obstacles.png`` + ``obstacles.json`` (2D map and polygons at the height band; only for a metric
+    scene: a robot's height band and a floor mean nothing in arbitrary units, see ``NO_MAP_WITHOUT_SCALE``),
     ``curves.png`` + ``history.json`` (against steps), ``eval/<frame>.png`` (render | ground
     truth, at the scored size) and ``eval.json`` (per view: PSNR / SSIM / LPIPS with the mean
     appearance embedding, the left-half fit's right-half ``*_half`` scores, depth AbsRel; which
@@ -956,9 +962,12 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
         # obstacles.json = occupancy.json (polygons with holes, read by nsim simulate), obstacles.png,
         # obstacle_cells.npy / .png (free / occupied / unknown) and the nav2 map map.yaml + map.pgm
         phases["occupancy_grid"] = round(time.perf_counter() - t0, 2)
-        t0 = time.perf_counter()
-        bake_obstacles(trainer).save(out_dir, units="m" if data.metric else "arbitrary")
-        phases["walkable_map"] = round(time.perf_counter() - t0, 2)
+        if data.metric:
+            t0 = time.perf_counter()
+            bake_obstacles(trainer, grid).save(out_dir)
+            phases["walkable_map"] = round(time.perf_counter() - t0, 2)
+        else:
+            log.warning("no walkable map: %s", NO_MAP_WITHOUT_SCALE)
     history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
     plot_curves(out_dir / "curves.png", history)
     (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
@@ -1003,7 +1012,9 @@ def scale_record(trainer: SceneTrainer) -> dict[str, Any]:
     the trainer's lengths: the config's metre values times ``units_per_m``)."""
     data = trainer.data
     return {"metric": bool(data.metric), "units": "m" if data.metric else "arbitrary",
-            "scale_source": data.scale_source, "units_per_m": trainer.units_per_m, "units_per_m_from": trainer.units_from}
+            "scale_source": data.scale_source, "units_per_m": trainer.units_per_m, "units_per_m_from": trainer.units_from,
+            "walkable_map": "occupancy.json" if data.metric else None,
+            **({} if data.metric else {"walkable_map_why_not": NO_MAP_WITHOUT_SCALE})}
 
 
 def config_json(cfg: TrainSceneConfig) -> str:

@@ -55,6 +55,7 @@ LPIPS_NETS = ("alex", "vgg", "none")
 PROTOCOL_HALF = "nerfstudio left-half embedding fit, right-half score"
 KEEP_COEFFICIENT = 1e-4  # the fit: samples with a smaller compositing coefficient keep their mean-embedding colour
 RECOLOUR_COEFFICIENT = 1e-6  # the scored colour: within S * 1e-6 of the renderer's (S samples a ray)
+FIT_GROUP_VIEWS = 16  # held-out views whose appearance codes are fitted in one batch (bounds its memory)
 
 
 @dataclass(frozen=True)
@@ -230,15 +231,44 @@ class AppearanceFit:
 
     def fit(self, target: Tensor, code: Tensor, steps: int, lr: float) -> Tensor:
         """The code after ``steps`` full-batch Adam steps on the colour MSE against ``target (R, 3)``."""
-        code = code.detach().clone().float().requires_grad_(True)
-        opt = torch.optim.Adam([code], lr=lr)
-        with torch.autocast(target.device.type, enabled=False):
-            for _ in range(steps):
-                loss = torch.mean((self.colour(code) - target) ** 2)
-                (grad,) = torch.autograd.grad(loss, [code])  # the model's own .grad stays untouched
-                code.grad = grad
-                opt.step()
-        return code.detach()
+        return fit_codes([self], [target], code, steps, lr)[0]
+
+
+def fit_codes(fits: list[AppearanceFit], targets: list[Tensor], code: Tensor, steps: int, lr: float) -> Tensor:
+    """One code per fit, each after ``steps`` full-batch Adam steps from ``code (A,)`` on the colour
+    MSE of its own rays against its ``targets[v] (R_v, 3)``: ``(V, A)``.
+
+    All views in one pass: their kept samples in one batch, each coloured with its own view's code,
+    and the loss the sum of the views' MSEs. A view's loss involves only its own code and Adam
+    updates every element on its own, so this is V separate fits, in one batch of samples instead
+    of V small ones (the same numbers up to the order of floating-point sums)."""
+    if len(fits) != len(targets) or not fits:
+        raise ValueError(f"fit_codes: {len(fits)} fits and {len(targets)} targets")
+    ref = fits[0]
+    base = torch.cat([f.base for f in fits])  # (S, H): every view's kept samples, view after view
+    counts = [len(f.base) for f in fits]
+    offsets = np.cumsum([0] + [f.n for f in fits[:-1]])
+    ray = torch.cat([f.ray + int(o) for f, o in zip(fits, offsets, strict=True)])
+    coef = torch.cat([f.coef for f in fits])[:, None]
+    const = torch.cat([f.const for f in fits])
+    target = torch.cat([t.float() for t in targets])
+    # each view's mean over its own R_v x 3 values: the sum of the views' MSEs
+    per_ray = torch.cat([torch.full((f.n, 1), 1.0 / (3 * f.n), device=base.device) for f in fits])
+    layers = [(layer.weight.detach().float(), layer.bias.detach().float()) for layer in ref.later]
+    codes = code.detach().float().expand(len(fits), -1).clone().requires_grad_(True)
+    opt = torch.optim.Adam([codes], lr=lr)
+    with torch.autocast(base.device.type, enabled=False):
+        for _ in range(steps):
+            proj = codes @ ref.w_code.T  # (V, H); expanded per view, so its gradient is a plain sum
+            h = base + torch.cat([proj[v].expand(n, -1) for v, n in enumerate(counts)])
+            for w, b in layers:  # the colour MLP: ReLU before every later layer, none after the last
+                h = torch.nn.functional.linear(torch.relu(h), w, b)
+            colour = const.index_add(0, ray, coef * torch.sigmoid(h))
+            loss = (((colour - target) ** 2) * per_ray).sum()
+            (grad,) = torch.autograd.grad(loss, [codes])  # the model's own .grad stays untouched
+            codes.grad = grad
+            opt.step()
+    return codes.detach()
 
 
 def left_half_pixels(height: int, width: int, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
@@ -280,11 +310,36 @@ def abs_rel(pred_depth: np.ndarray, gt_depth: np.ndarray) -> float:
     return float(np.mean(np.abs(pred_depth[valid] - gt_depth[valid]) / gt_depth[valid]))
 
 
+def fits_half(model: SceneModel, cfg: EvalConfig, width: int) -> bool:
+    """Whether ``final`` scoring fits a held-out appearance code (an embedded model, fit steps, a left half)."""
+    return model.field.appearance is not None and cfg.fit_steps > 0 and width // 2 >= 1
+
+
+def mean_code(model: SceneModel) -> Tensor:
+    """The mean appearance embedding of the training images ``(A,)``."""
+    return model.field.appearance_codes(None, 1, "mean", model.train_mask)[0].detach()
+
+
+def left_half_fit(model: SceneModel, view: ViewRays, gt: np.ndarray, cfg: EvalConfig,
+                  generator: torch.Generator) -> tuple[AppearanceFit, Tensor]:
+    """What fits a held-out view's code: the :class:`AppearanceFit` of ``cfg.fit_rays`` left-half pixels of
+    ``view`` (drawn with ``generator``) under the mean code, and their colours in ``gt (H, W, 3)`` [0, 1]."""
+    h, w = gt.shape[:2]
+    device = model.aabb.device
+    model.eval()
+    v, u = left_half_pixels(h, w, cfg.fit_rays, generator)
+    rays, _ = pixel_rays(view, v, u, device)
+    target = torch.as_tensor(gt[v.numpy(), u.numpy()], device=device)
+    return AppearanceFit.of(model, rays, mean_code(model)), target
+
+
 def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: np.ndarray | None, chunk: int,
                cfg: EvalConfig, final: bool, generator: torch.Generator | None = None,
-               pool: Executor | None = None, on_render: Callable[[np.ndarray], None] | None = None) -> dict[str, Any]:
+               pool: Executor | None = None, on_render: Callable[[np.ndarray], None] | None = None,
+               code: Tensor | None = None) -> dict[str, Any]:
     """Scores of one held-out view (see the module docstring); ``final`` adds LPIPS and the half-image
-    scores (these need ``generator`` for the fit's pixels). ``on_render(rgb)``: called with the
+    scores (these need ``generator`` for the fit's pixels, or the fitted ``code (A,)`` itself:
+    :func:`score_views` fits many views' codes at once). ``on_render(rgb)``: called with the
     mean-embedding render (to save it) before it is dropped."""
     from nsim.metrics.image import psnr
 
@@ -292,14 +347,13 @@ def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: n
     gt = gt_u8.astype(np.float32) / 255.0
     h, w = gt.shape[:2]
     half = w // 2
-    code = None
-    if final and model.field.appearance is not None and cfg.fit_steps > 0 and half >= 1:
-        model.eval()
-        mean_code = model.field.appearance_codes(None, 1, "mean", model.train_mask)[0].detach()
-        v, u = left_half_pixels(h, w, cfg.fit_rays, generator)
-        rays, _ = pixel_rays(view, v, u, device)
-        target = torch.as_tensor(gt[v.numpy(), u.numpy()], device=device)
-        code = AppearanceFit.of(model, rays, mean_code).fit(target, mean_code, cfg.fit_steps, cfg.fit_lr)
+    if not (final and fits_half(model, cfg, w)):
+        code = None
+    elif code is None:
+        fit, target = left_half_fit(model, view, gt, cfg, generator)
+        code = fit.fit(target, mean_code(model), cfg.fit_steps, cfg.fit_lr)
+    if code is not None:
+        code = code.to(device)
     # one pass: the mean-embedding image, and its right half again under the fitted code
     pred = render_image(model, view, chunk, pool=pool, recolour=code, recolour_from=half)
     row = image_scores(pred["rgb"], gt, cfg.lpips_net if final else "none", str(device))
@@ -312,7 +366,7 @@ def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: n
         scores = image_scores(pred["rgb_recoloured"], gt[:, half:], cfg.lpips_net, str(device))
         row.update({f"{k}_half": val for k, val in scores.items()})
         row["psnr_half_mean_embedding"] = psnr(pred["rgb"][:, half:], gt[:, half:])
-        row["appearance_fit_shift"] = float(torch.linalg.vector_norm(code - mean_code))
+        row["appearance_fit_shift"] = float(torch.linalg.vector_norm(code - mean_code(model)))
     return row
 
 
@@ -334,6 +388,24 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
     Returns ``views`` (one row each), ``mean``, ``resolution`` (scored and captured ``[w, h]``) and ``protocol``."""
     from nsim.io.images import to_uint8, write_image
 
+    codes: dict[int, Tensor] = {}
+    if final and cfg.fit_steps > 0 and model.field.appearance is not None:
+        for g in range(0, len(views), FIT_GROUP_VIEWS):  # the codes of a group of views in one fit
+            fits, targets, group = [], [], []
+            for i in views[g : g + FIT_GROUP_VIEWS]:
+                camera = data.eval_camera(i, cfg.image_side)
+                if not fits_half(model, cfg, camera.width):
+                    continue
+                gt = data.eval_image(i, camera).astype(np.float32) / 255.0
+                fit, target = left_half_fit(model, frame_view(model, data.cam_to_world[i], camera), gt, cfg,
+                                            fit_generator(int(i)))
+                fits.append(fit)
+                targets.append(target)
+                group.append(i)
+            if fits:
+                codes.update(zip(group, fit_codes(fits, targets, mean_code(model), cfg.fit_steps, cfg.fit_lr),
+                                 strict=True))
+            del fits, targets
     rows = []
     scored = None
     for i in views:
@@ -345,7 +417,7 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
             def save(rgb, i=i, gt=gt):
                 write_image(Path(image_dir) / f"frame_{i:05d}.png", np.concatenate([to_uint8(rgb), gt], axis=1))
         row = score_view(model, frame_view(model, data.cam_to_world[i], camera), gt, data.eval_depth_z(i, camera),
-                         chunk, cfg, final, fit_generator(int(i)), pool, save)
+                         chunk, cfg, final, fit_generator(int(i)), pool, save, code=codes.get(i))
         rows.append({"frame": int(i), "name": data.names[i], **row})
     fh, fw = data.full_size_hw
     return {"views": rows, "mean": mean_scores(rows),

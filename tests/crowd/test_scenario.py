@@ -375,14 +375,16 @@ def test_tum_trajectory_is_inlined_and_hashed(tmp_path):
 
 
 def _publish_scene(
-    store, occupancy: dict | None, kind: str = "scene-checkpoint", ref: str = "scene/test"
+    store, occupancy: dict | None, kind: str = "scene-checkpoint", ref: str = "scene/test", scene_json: dict | None = None
 ) -> str:
-    key = store.action_key("fake-scene", 1, {"n": json.dumps(occupancy)})
+    key = store.action_key("fake-scene", 1, {"n": json.dumps(occupancy), "s": json.dumps(scene_json)})
     with store.publish(kind=kind, stage="fake-scene", version=1, key=key, config={}, ref=ref) as out:
         if occupancy is not None:
             (out.dir / "occupancy.json").write_text(json.dumps(occupancy))
         else:
             (out.dir / "weights.bin").write_bytes(b"\0")
+        if scene_json is not None:
+            (out.dir / "scene.json").write_text(json.dumps(scene_json))
     return out.ref
 
 
@@ -411,6 +413,13 @@ def test_scene_checkpoint_reads_its_occupancy(store, tmp_path):
     with pytest.raises(
         InputError, match=r"scene.checkpoint 'scene/empty': the artifact has no occupancy.json"
     ):
+        load_scenario(write(tmp_path, d), store=store)
+    # a scene of arbitrary scale has no walkable map: the one line says why and how to give a scale
+    _publish_scene(store, None, ref="scene/unscaled", scene_json={
+        "metric": False, "walkable_map": None, "walkable_map_why_not": "the poses' scale is arbitrary (test)"})
+    d["scene"] = {"checkpoint": "scene/unscaled"}
+    with pytest.raises(InputError, match=r"scene.checkpoint: scene-checkpoint \w{12} has no walkable map: the poses' "
+                                         r"scale is arbitrary \(test\)$"):
         load_scenario(write(tmp_path, d), store=store)
     _publish_scene(store, {"polygons": []}, kind="capture", ref="capture/x")
     d["scene"] = {"checkpoint": "capture/x"}

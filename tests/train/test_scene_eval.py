@@ -104,6 +104,33 @@ def test_fit_is_deterministic_and_changes_only_the_vector(trained):
         assert (p.grad is None and g is None) or torch.equal(p.grad, g)
 
 
+def test_views_fitted_together_get_their_separate_fits_codes(trained):
+    """fit_codes fits several views' codes in one batch: each equals that view's own fit (Adam is
+    elementwise and each loss involves one code), and an unrelated view in the batch changes nothing."""
+    from nsim.train.scene_eval import fit_codes
+
+    model = trained.model.eval()
+    view = _view(trained)
+    mean = model.field.appearance_codes(None, 1, "mean", model.train_mask)[0].detach()
+    fits, targets = [], []
+    for seed, image in ((3, 5), (4, 1), (5, 7)):  # three "views": pixel sets and appearances of their own
+        v, u = left_half_pixels(view.camera.height, view.camera.width, 200 + 50 * seed, torch.Generator().manual_seed(seed))
+        rays, _ = pixel_rays(view, v, u, "cpu")
+        with torch.no_grad():
+            targets.append(model.render(rays, appearance=model.field.appearance.weight[image].detach()).rgb)
+        fits.append(AppearanceFit.of(model, rays, mean))
+    together = fit_codes(fits, targets, mean, 40, 0.05)
+    assert together.shape == (3, mean.shape[0])
+    for k in range(3):
+        alone = fits[k].fit(targets[k], mean, 40, 0.05)
+        torch.testing.assert_close(together[k], alone, atol=1e-5, rtol=0)
+    assert not torch.allclose(together[0], together[1], atol=1e-3)  # the views' codes differ
+    pair = fit_codes(fits[:2], targets[:2], mean, 40, 0.05)
+    torch.testing.assert_close(pair, together[:2], atol=1e-5, rtol=0)
+    with pytest.raises(ValueError, match="2 fits and 1 targets"):
+        fit_codes(fits[:2], targets[:1], mean, 1, 0.05)
+
+
 def test_eval_json_scores_the_asked_resolution_and_the_half_protocol(tiny_data, tmp_path):
     cfg = micro_cfg(optim={"steps": 3}, output={"final_eval_views": 2}, eval={"image_side": 32, "fit_steps": 20})
     result = train_scene(tiny_data, cfg, tmp_path / "work", seed=0)
