@@ -40,10 +40,10 @@ import torch  # noqa: E402
 from nsim.config import from_dict, load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.stages import capture  # noqa: E402
+from nsim.train.loop import spread  # noqa: E402
 from nsim.train.scene import (  # noqa: E402
     SceneData,
     TrainSceneConfig,
-    _spread,
     abs_rel,
     bake_occupancy,
     constant_color_psnr,
@@ -171,7 +171,7 @@ def bench_one(label: str, data: SceneData, cfg: TrainSceneConfig, oracle, args, 
     The trained model is also published to the workspace as the ``train_scene`` stage would
     (same action key) and tagged ``scene/bench-<label>``, so ``bench/render.py --workspace`` reuses it."""
     held = [int(i) for i in data.split(cfg.data.holdout_every)[1]]
-    views = _spread(held, args.eval_views)
+    views = spread(held, args.eval_views)
     every = max(1, cfg.optim.steps // max(1, args.evals))
     curve: list[dict] = []
 
@@ -204,7 +204,7 @@ def bench_one(label: str, data: SceneData, cfg: TrainSceneConfig, oracle, args, 
     t0 = time.perf_counter()
     grid = bake_occupancy(trainer)
     bake_s = time.perf_counter() - t0
-    poses = off_path_poses(data, _spread(held, args.off_path_views))
+    poses = off_path_poses(data, spread(held, args.off_path_views))
     off = score_off_path(model, oracle, data, poses)
     off_grid = score_off_path(model, oracle, data, poses, method="march", grid=grid)
     speed = render_speed(model, grid, data, held[len(held) // 2], args.speed_rays, 0.01)

@@ -63,10 +63,10 @@ from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
 from nsim.train import checkpoint
 from nsim.train.checkpoint import CHECKPOINT_NAME
+from nsim.train.loop import ResumableTrainer, spread, step_seed, train_loop
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT_FORMAT = 1
 
 
 # ====================================================================== configuration
@@ -235,8 +235,8 @@ def _dilate(mask: np.ndarray, px: int) -> np.ndarray:
 
 
 def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
-    digest = hashlib.sha256(f"nsim.train.human:{purpose}:{seed}:{step}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") >> 1
+    """The human trainer's seeds (``nsim.train.loop.step_seed`` in its namespace)."""
+    return step_seed("nsim.train.human", seed, step, purpose)
 
 
 def _module_digest(module: torch.nn.Module | None) -> str:
@@ -259,7 +259,7 @@ class StepStats:
     extra: dict[str, float] = field(default_factory=dict)
 
 
-class HumanTrainer:
+class HumanTrainer(ResumableTrainer):
     """One training run's state: model, optimiser, step; ``train_step`` advances it by one."""
 
     def __init__(self, data: HumanTrainData, cfg: TrainHumanConfig, device: str = "cpu", seed: int = 0,
@@ -428,30 +428,9 @@ class HumanTrainer:
         return {"config": config_digest(self.cfg), "data": self.data.digest, "seed": self.seed,
                 "device": self.device.type, "background_model": _module_digest(self.background_model)}
 
-    def state_dict(self) -> dict[str, Any]:
-        return {"format": CHECKPOINT_FORMAT, "meta": self.meta(), "step": self.step,
-                "train_seconds": self.train_seconds, "model": self.model.state_dict(),
-                "optimizer": self.optimizer.state_dict(), "history": self.history}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state.get("format") != CHECKPOINT_FORMAT:
-            raise InputError(f"checkpoint format {state.get('format')} is not {CHECKPOINT_FORMAT}")
-        if state["meta"] != self.meta():
-            raise InputError("checkpoint was made by another run (config, data, seed, device or background differ)")
-        self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.step = int(state["step"])
-        self.train_seconds = float(state["train_seconds"])
-        self.history = list(state["history"])
-
-    def save_checkpoint(self, path: Path) -> None:
-        """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
-        checkpoint.save_checkpoint(self.state_dict(), path)
-
-    def load_checkpoint(self, path: Path) -> None:
-        """Continue from the checkpoint at ``path``; read weights-only, so no code in it runs.
-        Raises ``InputError`` if it is unreadable or another run's."""
-        self.load_state_dict(checkpoint.load_checkpoint(path, map_location=self.device))
+    def history_row(self, stats: StepStats) -> dict[str, Any]:
+        """The history's row at a logged step: loss, training PSNR and the step's extras."""
+        return {"step": self.step, "loss": stats.loss, "psnr_train": stats.psnr, **stats.extra}
 
     # ------------------------------------------------------------------ evaluation
     @torch.no_grad()
@@ -571,39 +550,15 @@ def train_human(
     the module docstring). A checkpoint of this run (same config, data, seed, device and
     background model) in ``work_dir`` is resumed; one is written every
     ``output.checkpoint_every`` steps and at the end. ``stop_after``: return after that many
-    total steps without writing a checkpoint, as if killed (tests).
+    total steps without writing a checkpoint, as if killed (tests). The loop is ``nsim.train.loop.train_loop``.
     """
-    from nsim.progress import progress_bar
-
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     ckpt = work_dir / CHECKPOINT_NAME
     trainer, resumed = checkpoint.resume(lambda: HumanTrainer(data, cfg, device, seed, background_model), ckpt)
-    out = cfg.output
-    end = cfg.optim.steps if stop_after is None else min(cfg.optim.steps, stop_after)
-    with progress_bar(cfg.optim.steps, "training human", progress) as bar:
-        bar.advance(trainer.step)
-        while trainer.step < end:
-            stats = trainer.train_step()
-            step = trainer.step
-            if step % out.log_every == 0 or step == cfg.optim.steps:
-                trainer.history.append({"step": step, "loss": stats.loss, "psnr_train": stats.psnr, **stats.extra})
-                bar.advance(0, loss=f"{stats.loss:.4f}", psnr=f"{stats.psnr:.2f}")
-                log.info("step %d loss %.5f psnr %.2f (%.1f s)", step, stats.loss, stats.psnr, trainer.train_seconds)
-                if on_log is not None:
-                    on_log(trainer, stats)
-            if step % out.checkpoint_every == 0 or step == cfg.optim.steps:
-                t0 = time.perf_counter()
-                trainer.save_checkpoint(ckpt)
-                trainer.train_seconds += time.perf_counter() - t0
-            bar.advance(1)
+    train_loop(trainer, cfg.optim.steps, cfg.output.log_every, cfg.output.checkpoint_every, ckpt, "training human",
+               progress, stop_after, on_log, log)
     return HumanTrainResult(trainer, resumed)
-
-
-def _spread(items: list[int], n: int) -> list[int]:
-    if n <= 0 or n >= len(items):
-        return items
-    return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
 
 
 def write_gif(path: str | os.PathLike, frames: list[np.ndarray], fps: float) -> Path:
@@ -649,7 +604,7 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
     write_gif(out_dir / "gait.gif", gait_frames(model, o.gait_frames, o.preview_width, o.preview_height), o.gait_fps)
     (out_dir / "history.json").write_text(json.dumps(trainer.history, indent=1) + "\n")
     summary: dict[str, Any] = {"steps": trainer.step, "canonical_box_m": [lo.tolist(), hi.tolist()]}
-    views = _spread(list(trainer.eval_ids), o.eval_views)
+    views = spread(list(trainer.eval_ids), o.eval_views)
     if views:
         ev = trainer.evaluate(views, keep_images=True)
         (out_dir / "eval").mkdir(exist_ok=True)

@@ -62,6 +62,7 @@ from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
 from nsim.train import checkpoint
 from nsim.train.checkpoint import CHECKPOINT_NAME
+from nsim.train.loop import ResumableTrainer, spread, step_seed, train_loop
 from nsim.train.scene_data import (
     BOUNDS_MODES,
     POINT_FILES,
@@ -80,7 +81,6 @@ from nsim.train.scene_eval import (
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT_FORMAT = 1
 #: Why a scene of arbitrary scale has no walkable map (scene.json's ``walkable_map``; nsim simulate says it too).
 NO_MAP_WITHOUT_SCALE = ("the poses' scale is arbitrary, so a robot's height band and a floor mean nothing in them; "
                         "give nsim reconstruct a scale (--reference, --camera-height or --known-distance; --metric "
@@ -243,8 +243,8 @@ def image_depth_loss(pred_range: Tensor, target_range: Tensor, n_rays: int) -> T
 
 
 def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
-    digest = hashlib.sha256(f"nsim.train.scene:{purpose}:{seed}:{step}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") >> 1
+    """The scene trainer's seeds (``nsim.train.loop.step_seed`` in its namespace)."""
+    return step_seed("nsim.train.scene", seed, step, purpose)
 
 
 # ====================================================================== the trainer
@@ -267,7 +267,7 @@ def _sum_in_order(tensors: list[Tensor]) -> Tensor:
     return out
 
 
-class SceneTrainer:
+class SceneTrainer(ResumableTrainer):
     """One training run's state: model, optimiser, step; ``train_step`` advances it by one.
 
     Everything random in step ``k`` is drawn from generators seeded with ``(seed, k)``.
@@ -641,44 +641,31 @@ class SceneTrainer:
             meta["image_depth"] = self.depth_digest
         return meta
 
-    def state_dict(self) -> dict[str, Any]:
+    def _extra_state(self) -> dict[str, Any]:
         return {
-            "format": CHECKPOINT_FORMAT,
-            "meta": self.meta(),
-            "step": self.step,
-            "train_seconds": self.train_seconds,
-            "model": self.model.state_dict(),
             "pose_refine": None if self.pose_refine is None else self.pose_refine.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
             "scaler": self.scaler.state_dict(),
-            "history": self.history,
             # all randomness is a function of (seed, step); the global generators are kept for completeness
             "torch_rng": torch.get_rng_state(),
         }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state.get("format") != CHECKPOINT_FORMAT:
-            raise InputError(f"checkpoint format {state.get('format')} is not {CHECKPOINT_FORMAT}")
-        if state["meta"] != self.meta():
-            raise InputError(f"checkpoint was made by another run ({state['meta']} != {self.meta()})")
-        self.model.load_state_dict(state["model"])
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
         if self.pose_refine is not None:
             self.pose_refine.load_state_dict(state["pose_refine"])
-        self.optimizer.load_state_dict(state["optimizer"])
         self.scaler.load_state_dict(state["scaler"])
-        self.step = int(state["step"])
-        self.train_seconds = float(state["train_seconds"])
-        self.history = list(state["history"])
         torch.set_rng_state(state["torch_rng"])
 
-    def save_checkpoint(self, path: Path) -> None:
-        """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
-        checkpoint.save_checkpoint(self.state_dict(), path)
-
-    def load_checkpoint(self, path: Path) -> None:
-        """Continue from the checkpoint at ``path``; read weights-only, so no code in it runs.
-        Raises ``InputError`` if it is unreadable or another run's."""
-        self.load_state_dict(checkpoint.load_checkpoint(path, map_location=self.device))
+    def history_row(self, stats: StepStats) -> dict[str, Any]:
+        """The history's row at a logged step: loss, training PSNR, the step's extras, and the held-out
+        scores of ``output.eval_views`` views when an evaluation is due (``output.eval_every``)."""
+        out = self.cfg.output
+        row = {"step": self.step, "train_seconds": self.train_seconds, "loss": stats.loss, "psnr_train": stats.psnr,
+               **stats.extra}
+        if out.eval_every and (self.step % out.eval_every == 0 or self.step == self.cfg.optim.steps):
+            views = spread(list(self.eval_ids), out.eval_views)
+            if views:
+                row.update({f"eval_{k}": v for k, v in self.evaluate(views)["mean"].items()})
+        return row
 
     # ------------------------------------------------------------------ rendering and evaluation
     def density_fn(self) -> Callable[[Tensor], Tensor]:
@@ -791,47 +778,15 @@ def train_scene(
     device), training continues from it; a checkpoint is written every ``output.checkpoint_every``
     steps and at the end. ``stop_after``: return after that many total steps *without* writing a
     checkpoint, as if the process had been killed then (tests). ``on_log`` is called every
-    ``output.log_every`` steps (after evaluation, if one is due).
+    ``output.log_every`` steps (after evaluation, if one is due). The loop is ``nsim.train.loop.train_loop``.
     """
-    from nsim.progress import progress_bar
-
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     ckpt = work_dir / CHECKPOINT_NAME
     trainer, resumed = checkpoint.resume(lambda: SceneTrainer(data, cfg, device, seed), ckpt)
-    out = cfg.output
-    end = cfg.optim.steps if stop_after is None else min(cfg.optim.steps, stop_after)
-    with progress_bar(cfg.optim.steps, "training scene", progress) as bar:
-        bar.advance(trainer.step)
-        while trainer.step < end:
-            stats = trainer.train_step()
-            step = trainer.step
-            if step % out.log_every == 0 or step == cfg.optim.steps:
-                row = {"step": step, "train_seconds": trainer.train_seconds, "loss": stats.loss, "psnr_train": stats.psnr,
-                       **stats.extra}
-                if out.eval_every and (step % out.eval_every == 0 or step == cfg.optim.steps):
-                    views = _spread(list(trainer.eval_ids), out.eval_views)
-                    if views:
-                        ev = trainer.evaluate(views)["mean"]
-                        row.update({f"eval_{k}": v for k, v in ev.items()})
-                trainer.history.append(row)
-                bar.advance(0, loss=f"{stats.loss:.4f}", psnr=f"{stats.psnr:.2f}")
-                log.info("step %d loss %.5f psnr %.2f (%.1f s)", step, stats.loss, stats.psnr, trainer.train_seconds)
-                if on_log is not None:
-                    on_log(trainer, stats)
-            if step % out.checkpoint_every == 0 or step == cfg.optim.steps:
-                t0 = time.perf_counter()
-                trainer.save_checkpoint(ckpt)
-                trainer.train_seconds += time.perf_counter() - t0
-            bar.advance(1)
+    train_loop(trainer, cfg.optim.steps, cfg.output.log_every, cfg.output.checkpoint_every, ckpt, "training scene",
+               progress, stop_after, on_log, log)
     return TrainResult(trainer, resumed)
-
-
-def _spread(items: list[int], n: int) -> list[int]:
-    """``n`` items spread evenly over ``items`` (all when n is 0 or too large)."""
-    if n <= 0 or n >= len(items):
-        return items
-    return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
 
 
 def occupancy_cell(aabb, cell_m: float, max_cells: int) -> float:
@@ -971,7 +926,7 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
     history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
     plot_curves(out_dir / "curves.png", history)
     (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
-    views = _spread(list(trainer.eval_ids), cfg.output.final_eval_views)
+    views = spread(list(trainer.eval_ids), cfg.output.final_eval_views)
     summary: dict[str, Any] = {"steps": trainer.step, "occupied_fraction": grid.occupied_fraction}
     if views:
         t0 = time.perf_counter()

@@ -1,0 +1,130 @@
+"""What every nsim trainer shares: seeds per step, resumable state, and the training loop.
+
+The scene and human trainers differ in their models, batches and losses; how they are driven does
+not. A trainer (:class:`Trainer`) has a ``step``, ``train_seconds``, a ``history`` of logged rows
+and a ``train_step()``; :class:`ResumableTrainer` gives it the checkpoint state (format, the run's
+``meta`` that a checkpoint must match, step, seconds, model, optimiser, history, plus what a
+trainer adds in ``_extra_state``), written and read through :mod:`nsim.train.checkpoint` (plain
+weights-only files, so no code in a planted file runs). :func:`train_loop` runs the steps from
+wherever the trainer is (fresh or resumed) to the end: a history row every ``log_every`` steps and
+at the last, a checkpoint every ``checkpoint_every`` steps and at the last (its writing time counts
+as training time), a progress bar or periodic log lines. Every random draw of a step comes from a
+generator seeded by :func:`step_seed` ``(trainer, seed, step, purpose)``, so a run killed and
+resumed from its checkpoint repeats an uninterrupted one exactly.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Protocol
+
+from nsim.errors import InputError
+from nsim.train import checkpoint
+
+
+def step_seed(namespace: str, seed: int, step: int, purpose: str = "batch") -> int:
+    """A 63-bit seed for ``purpose`` at ``step`` of the run seeded ``seed`` in trainer ``namespace``
+    (e.g. ``nsim.train.scene``): SHA-256 of the four, so seeds of different steps and purposes are unrelated."""
+    digest = hashlib.sha256(f"{namespace}:{purpose}:{seed}:{step}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+def spread(items: list[int], n: int) -> list[int]:
+    """``n`` items spread evenly over ``items``, first and last included (all when n is 0 or too large)."""
+    if n <= 0 or n >= len(items):
+        return items
+    return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
+
+
+class StepResult(Protocol):
+    loss: float
+    psnr: float
+
+
+class Trainer(Protocol):
+    step: int
+    train_seconds: float
+    history: list[dict[str, Any]]
+
+    def train_step(self) -> StepResult: ...
+
+    def history_row(self, stats: StepResult) -> dict[str, Any]: ...
+
+    def save_checkpoint(self, path: Path) -> None: ...
+
+
+class ResumableTrainer:
+    """The checkpoint state of a trainer with ``model``, ``optimizer``, ``step``, ``train_seconds``,
+    ``history`` and ``device``. Subclasses give ``meta()`` (what identifies the run: a checkpoint of
+    another run is refused) and may add state in ``_extra_state`` / ``_load_extra_state`` (loaded
+    after the model, before the optimiser)."""
+
+    checkpoint_format = 1
+
+    def meta(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def _extra_state(self) -> dict[str, Any]:
+        return {}
+
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
+        """Apply what ``_extra_state`` saved."""
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"format": self.checkpoint_format, "meta": self.meta(), "step": self.step,
+                "train_seconds": self.train_seconds, "model": self.model.state_dict(),
+                "optimizer": self.optimizer.state_dict(), "history": self.history, **self._extra_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("format") != self.checkpoint_format:
+            raise InputError(f"checkpoint format {state.get('format')} is not {self.checkpoint_format}")
+        if state["meta"] != self.meta():
+            raise InputError(f"checkpoint was made by another run ({state['meta']} != {self.meta()})")
+        self.model.load_state_dict(state["model"])
+        self._load_extra_state(state)
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.step = int(state["step"])
+        self.train_seconds = float(state["train_seconds"])
+        self.history = list(state["history"])
+
+    def save_checkpoint(self, path: Path) -> None:
+        """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
+        checkpoint.save_checkpoint(self.state_dict(), path)
+
+    def load_checkpoint(self, path: Path) -> None:
+        """Continue from the checkpoint at ``path``; read weights-only, so no code in it runs.
+        Raises ``InputError`` if it is unreadable or another run's."""
+        self.load_state_dict(checkpoint.load_checkpoint(path, map_location=self.device))
+
+
+def train_loop(trainer: Trainer, steps: int, log_every: int, checkpoint_every: int, ckpt: Path, label: str,
+               progress: bool = False, stop_after: int | None = None,
+               on_log: Callable[[Any, Any], None] | None = None, logger: logging.Logger | None = None) -> None:
+    """Run ``trainer`` from its current step to ``steps`` (or ``stop_after``: return there without a
+    checkpoint, as if killed; tests). Every ``log_every`` steps and at the last, ``trainer.history_row(stats)``
+    joins the history, the bar shows loss and PSNR, ``logger`` logs them and ``on_log(trainer, stats)`` is
+    called; every ``checkpoint_every`` steps and at the last, the state goes to ``ckpt``."""
+    from nsim.progress import progress_bar
+
+    logger = logger or logging.getLogger(__name__)
+    end = steps if stop_after is None else min(steps, stop_after)
+    with progress_bar(steps, label, progress) as bar:
+        bar.advance(trainer.step)
+        while trainer.step < end:
+            stats = trainer.train_step()
+            step = trainer.step
+            if step % log_every == 0 or step == steps:
+                trainer.history.append(trainer.history_row(stats))
+                bar.advance(0, loss=f"{stats.loss:.4f}", psnr=f"{stats.psnr:.2f}")
+                logger.info("step %d loss %.5f psnr %.2f (%.1f s)", step, stats.loss, stats.psnr, trainer.train_seconds)
+                if on_log is not None:
+                    on_log(trainer, stats)
+            if step % checkpoint_every == 0 or step == steps:
+                t0 = time.perf_counter()
+                trainer.save_checkpoint(ckpt)
+                trainer.train_seconds += time.perf_counter() - t0
+            bar.advance(1)
