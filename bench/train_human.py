@@ -13,6 +13,7 @@ another part of the gait, seen from new viewpoints. Prints a table and one JSON 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import tempfile
@@ -51,7 +52,7 @@ def main() -> None:
                                                            overrides=cap_over), ctx).capture
         cap_s = time.perf_counter() - t0
         cfg = load_config(train_human.Config, stage="train_human", preset="tiny" if q else "default", overrides=th_over)
-        ctx.force = True
+        ctx = dataclasses.replace(ctx, force=True)
         t0 = time.perf_counter()
         out = train_human.run(train_human.Inputs(capture=cap_id), cfg, ctx)
         wall = time.perf_counter() - t0

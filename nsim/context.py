@@ -9,6 +9,7 @@ random draw in one place never shifts the numbers drawn in another.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import sys
 
@@ -44,21 +45,20 @@ def _name_seed(seed: int, name: str) -> list[int]:
     return [seed & 0xFFFFFFFF, (seed >> 32) & 0xFFFFFFFF, *np.frombuffer(digest[:16], dtype=np.uint32).tolist()]
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class RunContext:
+    """Frozen: code that needs another setting makes a new one, ``dataclasses.replace(ctx, force=True)``."""
+
     store: Store
     device_spec: str = "auto"
     seed: int = 0
     force: bool = False
     progress: bool | None = None  # None: show progress bars only on a terminal
-    _device: str | None = dataclasses.field(default=None, repr=False)
 
-    @property
+    @functools.cached_property
     def device(self) -> str:
         """The resolved torch device string (resolved on first use, so CPU-only commands skip torch)."""
-        if self._device is None:
-            self._device = resolve_device(self.device_spec)
-        return self._device
+        return resolve_device(self.device_spec)
 
     @property
     def show_progress(self) -> bool:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -12,10 +13,8 @@ from nsim.context import RunContext
 
 
 def run_context(click_ctx: click.Context, force: bool = False) -> RunContext:
-    """The root command's run context (the workspace is opened here, on first use)."""
-    ctx = click_ctx.find_root().obj.get()
-    ctx.force = force
-    return ctx
+    """The root command's run context (workspace opened on first use), with this command's --force."""
+    return dataclasses.replace(click_ctx.find_root().obj.get(), force=force)
 
 
 def _check_tag(click_ctx: click.Context, _param: click.Parameter, value: str | None) -> str | None:

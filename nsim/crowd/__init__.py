@@ -1,8 +1,9 @@
 """Crowds: social-force humans with HuNavSim behaviours, reacting to a robot that replays its path.
 
-``social_force`` holds the state, the forces and the integrator (``step``, ``rollout``);
-``behaviours`` the reactions to the robot; ``neighbours`` the KD-tree / grid searches;
-``gait`` the walk-cycle phase; ``metrics`` the HuNavSim evaluation metrics.
+``social_force`` holds the crowd's state, the forces and the integrator (``step``, ``rollout``);
+``state`` the robot as the crowd sees it (``RobotState``); ``behaviours`` the reactions to the
+robot; ``neighbours`` the KD-tree / grid searches; ``gait`` the walk-cycle phase; ``metrics`` the
+HuNavSim evaluation metrics.
 """
 
 from nsim.crowd.behaviours import Behaviour, BehaviourParams, behaviour_codes
@@ -12,12 +13,12 @@ from nsim.crowd.social_force import (
     CrowdState,
     CrowdTrajectory,
     ForceParams,
-    RobotState,
     RobotTrack,
     make_walls,
     rollout,
     step,
 )
+from nsim.crowd.state import RobotState
 
 __all__ = [
     "Behaviour",

@@ -40,15 +40,13 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from nsim.config import param
 from nsim.crowd.neighbours import segments_intersect
-
-if TYPE_CHECKING:
-    from nsim.crowd.social_force import RobotState
+from nsim.crowd.state import RobotState
 
 
 class Behaviour(enum.IntEnum):

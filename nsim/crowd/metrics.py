@@ -2,7 +2,7 @@
 
 Distances follow ``hunav_evaluator/hunav_metrics.py``: "distance to people" is from the human's
 centre to the robot's *surface* (HuNavSim: centre distance minus the robot's radius; here the
-robot is a capsule, see ``social_force.RobotState``); the closest-person average also subtracts
+robot is a capsule, see ``state.RobotState``); the closest-person average also subtracts
 the human's radius. Space intrusions are the percentage of ticks whose closest person is in the
 band: intimate ``[0, 0.45)`` (and anything closer), personal ``[0.45, 1.2)``, social
 ``[1.2, 3.6)`` metres. Forces use this package's own force model (``social_force``), as HuNavSim

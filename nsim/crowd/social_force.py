@@ -39,7 +39,6 @@ body never overlaps a wall segment. The velocity reported is the displacement ov
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -49,6 +48,7 @@ from nsim.crowd import behaviours as beh
 from nsim.crowd.behaviours import Behaviour, BehaviourParams, Reaction, RobotView
 from nsim.crowd.gait import advance_gait_phase, stride_length_m
 from nsim.crowd.neighbours import SegmentGrid, closest_points_on_segments, neighbour_pairs
+from nsim.crowd.state import RobotState
 
 log = logging.getLogger(__name__)
 
@@ -90,28 +90,6 @@ class ForceParams:
     arrival_deceleration_mps2: float = param(1.0, gt=0, help="braking before a final goal or a stop point")
     max_turn_rate_dps: float = param(360.0, gt=0, help="heading turn rate limit")
     push_out_of_robot: bool = param(True, help="humans overlapping the robot's body are pushed out")
-
-
-@dataclass(frozen=True)
-class RobotState:
-    """The robot at one tick, as the humans perceive it: a capsule on the floor.
-
-    position_m: (2,) centre; velocity_mps: (2,); heading_rad: yaw about +z from +x.
-    The body is the segment ``position_m +- half_length_m * (cos, sin)(heading_rad)`` grown by
-    ``radius_m`` (Spot: about 1.1 x 0.5 m -> half_length_m 0.3, radius_m 0.28).
-    """
-
-    position_m: np.ndarray
-    velocity_mps: np.ndarray
-    heading_rad: float
-    radius_m: float
-    half_length_m: float = 0.0
-
-    def body_segment_m(self) -> np.ndarray:
-        """End points ``(2, 2)`` of the body's axis (a single point when ``half_length_m`` is 0)."""
-        u = np.array([math.cos(self.heading_rad), math.sin(self.heading_rad)])
-        c = np.asarray(self.position_m, dtype=np.float64)
-        return np.stack([c - self.half_length_m * u, c + self.half_length_m * u])
 
 
 @dataclass(frozen=True)

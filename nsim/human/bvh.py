@@ -9,13 +9,19 @@ How nsim reads it:
 * Rotation channels are intrinsic Euler angles in degrees, in the order listed per joint
   (``Zrotation Xrotation Yrotation`` is ``R = Rz @ Rx @ Ry``); every joint may have its own order.
 * The root position is its ``OFFSET`` plus its position channels. Position channels on other
-  joints (an exporter habit that repeats the offset) are read but the ``OFFSET`` is used.
+  joints (an exporter habit that repeats the offset) are read but the ``OFFSET`` is used (one
+  warning per file where they differ from it).
 * Axes: BVH files are y-up with the body facing +z (its left is +x), as CMU's and Mixamo's
   are; ``axes="y_up"`` converts that to nsim's z-up, +x-forward world
   (``nsim = BVH_Y_UP_TO_NSIM @ bvh``). ``axes="z_up"`` reads the axes as they are.
-* Units: ``unit="auto"`` picks metres, centimetres or millimetres, whichever makes the rest
-  skeleton's height closest to 1.7 m (it must come out within ``AUTO_UNIT_RANGE_M``);
-  inches or other units must be given (``unit="inch"`` or a number of metres per unit).
+* Units: ``unit`` is a name in ``UNITS_M`` or a number of metres per file unit. ``unit="auto"``
+  measures the rest skeleton (``infer_unit_m``): first metres, centimetres or millimetres,
+  the one that puts its height within ``AUTO_UNIT_RANGE_M``; otherwise, if its proportions
+  are a standing body's (legs, the root above the lowest joint, ``LEG_FRACTION_RANGE`` of its
+  height), the scale that gives it the nsim body's leg length, or ``inch`` or ``cmu`` (the
+  CMU database's 1/0.45 inch, about 7 units per leg bone) where one is within
+  ``UNIT_SNAP_FACTOR`` of that scale. Only a skeleton whose proportions are not a body's
+  "cannot tell" (InputError: give the unit).
 
 The result is a ``MotionClip`` on the file's own skeleton (joints in file order, metres, nsim
 axes); ``nsim.human.retarget`` maps it onto the nsim body. Malformed files raise
@@ -35,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.human.motion import MotionClip
-from nsim.human.skeleton import Skeleton, quats_from_matrices
+from nsim.human.skeleton import Skeleton, nsim_skeleton, quats_from_matrices
 
 log = logging.getLogger(__name__)
 
@@ -43,8 +49,20 @@ BVH_Y_UP_TO_NSIM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 """``nsim_xyz = BVH_Y_UP_TO_NSIM @ bvh_xyz``: BVH +z (forward) -> +x, +x (left) -> +y, +y (up) -> +z."""
 BVH_Y_UP_TO_NSIM.setflags(write=False)
 
-UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
+UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "cmu": 0.0254 / 0.45}
+"""Metres per file unit. ``cmu``: the CMU motion capture database's ASF unit (``length 0.45``:
+1/0.45 inch), which its BVH conversions (cgspeed's) keep."""
+METRIC_UNITS = ("m", "cm", "mm")
+"""Tried first by ``unit="auto"``, on the skeleton's height."""
+OTHER_UNITS = ("inch", "cmu")
+"""Tried by ``unit="auto"`` when no metric unit fits, on the skeleton's leg length."""
 AUTO_UNIT_RANGE_M = (0.4, 3.0)
+"""Heights (m) a metric unit must give the rest skeleton for ``unit="auto"`` to take it."""
+LEG_FRACTION_RANGE = (0.3, 0.8)
+"""Leg length (root above the lowest joint) over height of a standing rest skeleton, for
+``unit="auto"``: nsim's body 0.55, CMU's 0.64; outside it the proportions are not a body's."""
+UNIT_SNAP_FACTOR = 1.25
+"""``unit="auto"`` takes a named unit within this factor of the scale the leg length gives."""
 _AXES = ("y_up", "z_up")
 _CHANNELS = {"xposition": "Xposition", "yposition": "Yposition", "zposition": "Zposition",
              "xrotation": "Xrotation", "yrotation": "Yrotation", "zrotation": "Zrotation"}
@@ -166,7 +184,31 @@ def _parse_joint(tokens: _Tokens, joints: list[_Joint], parent: int, name: str, 
         raise tokens.error(line, f"joint {name!r} has both children and an End Site")
 
 
-def _pick_unit(height: float, path: str, unit: str | float) -> float:
+def infer_unit_m(skeleton: Skeleton) -> tuple[float, str] | None:
+    """Metres per file unit of a rest ``skeleton`` given in file units (z up), as ``unit="auto"`` finds it.
+
+    Returns ``(metres per unit, how it was found)``, or None when the skeleton's proportions are
+    not a standing body's (see the module docstring). The leg length is ``Skeleton.leg_length_m``
+    (the root above the lowest joint), the one retargeting scales root motion by.
+    """
+    height, leg = skeleton.height_m(), skeleton.leg_length_m()
+    if not height > 0:
+        return None
+    lo, hi = AUTO_UNIT_RANGE_M
+    for name in METRIC_UNITS:  # at most one fits: the range spans less than a factor of 10
+        if lo <= height * UNITS_M[name] <= hi:
+            return UNITS_M[name], f"unit {name} (rest height {height:.4g} units)"
+    if not LEG_FRACTION_RANGE[0] <= leg / height <= LEG_FRACTION_RANGE[1]:
+        return None
+    scale = nsim_skeleton().leg_length_m() / leg
+    name = min(OTHER_UNITS, key=lambda u: abs(math.log(UNITS_M[u] / scale)))
+    if abs(math.log(UNITS_M[name] / scale)) <= math.log(UNIT_SNAP_FACTOR):
+        return UNITS_M[name], f"unit {name} (legs {leg:.4g} units)"
+    return scale, f"{scale:.4g} m per unit: no named unit fits; the nsim body's leg length over this one's ({leg:.4g} units)"
+
+
+def _pick_unit(skeleton: Skeleton, path: str, unit: str | float) -> float:
+    """Metres per file unit: ``unit`` as given, or ``infer_unit_m`` of the rest ``skeleton`` (file units, z up)."""
     if not isinstance(unit, str):
         scale = float(unit)
         if not (math.isfinite(scale) and scale > 0):
@@ -176,15 +218,18 @@ def _pick_unit(height: float, path: str, unit: str | float) -> float:
         if unit not in UNITS_M:
             raise ValueError(f"unit: expected one of {', '.join(UNITS_M)}, auto; got {unit!r}")
         return UNITS_M[unit]
-    lo, hi = AUTO_UNIT_RANGE_M
-    if height > 0:
-        candidates = ("m", "cm", "mm")
-        best = min(candidates, key=lambda u: abs(math.log(height * UNITS_M[u] / 1.7)))
-        if lo <= height * UNITS_M[best] <= hi:
-            log.debug("%s: skeleton height %.4g file units -> unit %s", path, height, best)
-            return UNITS_M[best]
-    raise InputError(f"{path}: cannot tell the length unit from the skeleton's height ({height:.4g} file units); "
-                     "give it explicitly (unit='m', 'cm', 'mm', 'inch' or metres per unit)")
+    found = infer_unit_m(skeleton)
+    if found is None:
+        names = ", ".join(repr(u) for u in UNITS_M)
+        raise InputError(f"{path}: cannot tell the length unit: the rest skeleton is {skeleton.height_m():.4g} file units "
+                         f"tall with legs of {skeleton.leg_length_m():.4g}, not a standing body's proportions; "
+                         f"give it explicitly (unit={names} or metres per unit)")
+    scale, how = found
+    if how.startswith("unit "):
+        log.debug("%s: %s", path, how)
+    else:
+        log.info("%s: %s", path, how)
+    return scale
 
 
 def parse_bvh(text: str, path: str | os.PathLike[str] = "<bvh>", unit: str | float = "auto",
@@ -255,18 +300,18 @@ def parse_bvh(text: str, path: str | os.PathLike[str] = "<bvh>", unit: str | flo
         if not np.all(np.isfinite(data[k])):
             raise InputError(f"{path}:{lineno}: frame {k}: values must be finite")
 
-    # rest skeleton in file units and axes, to pick the unit
+    # rest skeleton in nsim axes and file units, to pick the unit
     parents = np.array([j.parent for j in joints])
     offsets = np.array([j.offset for j in joints])
     ends = np.array([j.end_site if j.end_site is not None else np.full(3, np.nan) for j in joints])
-    file_skeleton = Skeleton(tuple(j.name for j in joints), parents, offsets, ends)
-    up_axis = 1 if axes == "y_up" else 2
-    scale = _pick_unit(file_skeleton.height_m(up_axis=up_axis), path, unit)
+    file_skeleton = Skeleton(tuple(j.name for j in joints), parents, offsets @ A.T, ends @ A.T)
+    scale = _pick_unit(file_skeleton, path, unit)
 
     # channels -> root positions and local rotations (file axes)
     F, J = n_frames, len(joints)
     R_local = np.broadcast_to(np.eye(3), (F, J, 3, 3)).copy()
     root_pos = np.broadcast_to(joints[0].offset, (F, 3)).copy()
+    ignored: list[str] = []  # joints whose position channels differ from their OFFSET
     col = 0
     for j, joint in enumerate(joints):
         rot_axes, rot_cols = "", []
@@ -276,16 +321,19 @@ def parse_bvh(text: str, path: str | os.PathLike[str] = "<bvh>", unit: str | flo
                 rot_cols.append(col + c)
             elif j == 0:
                 root_pos[:, "XYZ".index(ch[0])] += data[:, col + c]
-            elif np.abs(data[:, col + c] - joint.offset["XYZ".index(ch[0])]).max() > 1e-4 * max(
-                    1.0, np.abs(joint.offset).max()):
-                log.warning("%s: joint %r has %s channels that differ from its OFFSET; using the OFFSET",
-                            path, joint.name, ch)
+            elif (np.abs(data[:, col + c] - joint.offset["XYZ".index(ch[0])]).max()
+                  > 1e-4 * max(1.0, np.abs(joint.offset).max())) and joint.name not in ignored:
+                ignored.append(joint.name)
         if rot_axes:
             R_local[:, j] = Rotation.from_euler(rot_axes, data[:, rot_cols], degrees=True).as_matrix()
         col += len(joint.channels)
+    if ignored:
+        shown = ", ".join(ignored[:5]) + (f" and {len(ignored) - 5} more" if len(ignored) > 5 else "")
+        log.warning("%s: position channels differ from the OFFSET on %d joint(s) (%s); using the OFFSETs "
+                    "(only the root's position channels move it)", path, len(ignored), shown)
 
     # to nsim axes and metres
-    skeleton = Skeleton(file_skeleton.joint_names, parents, (offsets @ A.T) * scale, (ends @ A.T) * scale)
+    skeleton = file_skeleton.scaled(scale)
     R_nsim = A @ R_local @ A.T
     return MotionClip(skeleton, 1.0 / frame_time, (root_pos @ A.T) * scale, quats_from_matrices(R_nsim),
                       name=path, loop=False)

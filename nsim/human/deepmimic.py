@@ -38,6 +38,7 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.human.motion import MotionClip
+from nsim.human.retarget import retarget
 from nsim.human.skeleton import Skeleton, nsim_skeleton
 
 FRAME_COLUMNS = 44
@@ -170,8 +171,6 @@ def read_deepmimic(path: str | os.PathLike[str]) -> MotionClip:
 
 def read_deepmimic_nsim(path: str | os.PathLike[str], height_m: float = 1.75) -> MotionClip:
     """Read a DeepMimic clip and retarget it onto ``nsim_skeleton(height_m)`` (``DEEPMIMIC_TO_NSIM_JOINTS``)."""
-    from nsim.human.retarget import retarget
-
     return retarget(read_deepmimic(path), nsim_skeleton(height_m), DEEPMIMIC_TO_NSIM_JOINTS)
 
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -318,23 +317,3 @@ class LocomotionLoop:
         root, q = self.pose_at(phase, xy, yaw)
         return MotionClip(self.skeleton, fps, root, q, name=f"{self.name} along path", loop=False)
 
-
-def load_motion(path: str | Path, height_m: float = 1.75, joint_map=None) -> MotionClip:
-    """Read a BVH (``.bvh``) or DeepMimic (``.txt`` / ``.json``) clip and retarget it to ``nsim_skeleton(height_m)``.
-
-    joint_map: for BVH, a ``JointMap`` (or a mapping nsim joint -> source name(s)); None uses
-    ``default_joint_map()`` (nsim's own names, CMU, Mixamo). Bad files raise ``InputError``.
-    """
-    from nsim.errors import InputError
-    from nsim.human.bvh import read_bvh
-    from nsim.human.deepmimic import read_deepmimic_nsim
-    from nsim.human.retarget import retarget
-    from nsim.human.skeleton import nsim_skeleton
-
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".bvh":
-        return retarget(read_bvh(path), nsim_skeleton(height_m), joint_map)
-    if suffix in (".txt", ".json"):
-        return read_deepmimic_nsim(path, height_m)
-    raise InputError(f"{path}: unknown motion file type {path.suffix!r} (expected .bvh, or .txt/.json DeepMimic)")

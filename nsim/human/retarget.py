@@ -23,10 +23,18 @@ in the source is used; names match case-insensitively, ignoring a ``prefix:`` su
 Mixamo's ``mixamorig:``), in one or more naming profiles (the best-matching one is used).
 ``default_joint_map()`` reads ``configs/motions/joint_map.yaml``: profiles for nsim's own
 names, CMU (cgspeed BVH conversion) and Mixamo.
+
+A skeleton that mostly does not map would come out as a body with straight legs and a stiff
+spine, so ``retarget`` refuses it (``check_coverage``): fewer than ``MIN_MAPPED_FRACTION`` of
+the target's joints mapped, or one of ``REQUIRED_JOINTS`` (pelvis, hips, knees, ankles)
+missing, is an InputError naming the clip, the count and the missing joints. Joints the
+profile names but the source lacks are one warning.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,6 +49,13 @@ from nsim.human.skeleton import Skeleton, local_rotations_from_global, quats_fro
 
 DEFAULT_JOINT_MAP_FILE = "motions/joint_map.yaml"
 """Path of the default joint map, relative to ``nsim.config.configs_dir()``."""
+
+MIN_MAPPED_FRACTION = 0.5
+"""``retarget`` refuses (InputError) when fewer than this fraction of the target's joints map to source joints."""
+REQUIRED_JOINTS = ("pelvis", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
+"""Target joints ``retarget`` refuses to do without (those the target has): unmapped, the legs would not bend."""
+
+log = logging.getLogger(__name__)
 
 
 def _key(name: str) -> str:
@@ -94,13 +109,21 @@ class JointMap:
     def resolve(self, source: Skeleton, target: Skeleton) -> dict[int, int]:
         """``{target joint index: source joint index}`` for every target joint with a candidate in ``source``.
 
-        Uses the best-matching profile. InputError (naming the map) for target names that the
-        target skeleton does not have.
+        Uses the best-matching profile (``resolve_profile``).
+        """
+        return self.resolve_profile(source, target)[1]
+
+    def resolve_profile(self, source: Skeleton, target: Skeleton) -> tuple[str, dict[int, int]]:
+        """The best-matching profile's name and its ``{target joint index: source joint index}``.
+
+        The best profile maps the most target joints, then has the fewest joints whose names the
+        source lacks (the first on ties: CMU's names also match most of Mixamo's). InputError
+        (naming the map) for target names that the target skeleton does not have.
         """
         by_key: dict[str, int] = {}
         for i, n in enumerate(source.joint_names):
             by_key.setdefault(_key(n), i)
-        best: dict[int, int] = {}
+        best_name, best, best_score = self.profiles[0][0], {}, (0, 0)
         for pname, table in self.profiles:
             out: dict[int, int] = {}
             for tname, candidates in table.items():
@@ -112,9 +135,14 @@ class JointMap:
                     if _key(c) in by_key:
                         out[target.index(tname)] = by_key[_key(c)]
                         break
-            if len(out) > len(best):
-                best = out
-        return best
+            score = (len(out), len(out) - len(table))  # most joints mapped, then fewest named but absent
+            if score > best_score:
+                best_name, best, best_score = pname, out, score
+        return best_name, best
+
+    def profile(self, name: str) -> Mapping[str, tuple[str, ...]]:
+        """The table of profile ``name``."""
+        return dict(self.profiles)[name]
 
     def candidates(self, target_joint: str) -> tuple[str, ...]:
         """All source names tried for ``target_joint`` across the profiles (for messages)."""
@@ -183,6 +211,32 @@ def rest_alignment(source: Skeleton, target: Skeleton, mapping: Mapping[int, int
     return C
 
 
+def check_coverage(mapping: Mapping[int, int], source: Skeleton, target: Skeleton, profile: str = "",
+                   expected: Mapping[str, object] | None = None, name: str = "<clip>") -> None:
+    """Refuse a joint mapping that would leave the body mostly unposed; warn about partial ones.
+
+    InputError (one line naming ``name``, how many of the target's joints map and which are
+    missing) when fewer than ``MIN_MAPPED_FRACTION`` of them map, or one of ``REQUIRED_JOINTS``
+    does not. Otherwise one warning if some target joints that ``expected`` (the profile's
+    table) names a source joint for are not in ``source``: they follow their parents.
+    """
+    J = target.num_joints
+    missing = [n for i, n in enumerate(target.joint_names) if i not in mapping]
+    need = math.ceil(MIN_MAPPED_FRACTION * J)
+    lacking = [n for n in REQUIRED_JOINTS if n in missing]
+    names = f" ({profile} names)" if profile else ""
+    if len(mapping) < need or lacking:
+        why = f"need at least {need}" + (f", including {', '.join(lacking)}" if lacking else "")
+        shown = ", ".join(source.joint_names[:12]) + (", ..." if source.num_joints > 12 else "")
+        raise InputError(f"{name}: only {len(mapping)} of {J} body joints map to the source skeleton{names}; "
+                         f"missing: {', '.join(missing)} ({why}); source joints: {shown}; "
+                         f"give a joint map for this skeleton (see configs/{DEFAULT_JOINT_MAP_FILE})")
+    absent = [n for n in missing if expected and expected.get(n)]
+    if absent:
+        log.warning("%s: %d of %d body joints map to the source skeleton%s; no source joint for %s, which "
+                    "follow their parents", name, len(mapping), J, names, ", ".join(absent))
+
+
 def retarget(clip: MotionClip, target: Skeleton, joint_map: JointMap | Mapping | None = None,
              root_scale: float | None = None, ground_feet: bool = True) -> MotionClip:
     """``clip`` on ``target`` (see the module docstring).
@@ -201,11 +255,13 @@ def retarget(clip: MotionClip, target: Skeleton, joint_map: JointMap | Mapping |
     elif not isinstance(joint_map, JointMap):
         joint_map = JointMap.from_mapping(joint_map)
     source = clip.skeleton
-    mapping = joint_map.resolve(source, target)
+    profile, mapping = joint_map.resolve_profile(source, target)
     if 0 not in mapping:
         tried = ", ".join(joint_map.candidates(target.joint_names[0])) or "no candidates"
         raise InputError(f"{clip.name or '<clip>'}: no source joint for the root {target.joint_names[0]!r} "
                          f"(tried {tried}; source joints: {', '.join(source.joint_names)})")
+    check_coverage(mapping, source, target, profile if len(joint_map.profiles) > 1 else "",
+                   joint_map.profile(profile), clip.name or "<clip>")
     if root_scale is None:
         ps = source.rest_positions_m()
         leg_s, leg_t = ps[mapping[0], 2] - ps[:, 2].min(), target.leg_length_m()

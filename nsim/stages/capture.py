@@ -12,11 +12,12 @@ Artifact layout::
                              .jpg with ``phone.jpeg_quality``
     depth/frame_00000.exr    float32 channel Z: z-depth in metres along the camera's +z axis
                              (NaN where undefined: fisheye pixels beyond 90 degrees)
-    video.mp4                the frames as a video (mp4v), what `nsim reconstruct` reads
+    video.mp4                the frames as a video (H.264, ``nsim.io.video``), what `nsim reconstruct` reads
     gt_trajectory.tum        camera-to-world poses, TUM format (a metric `--reference`)
     room.json                the room specification (rebuilds the oracle)
     occupancy.json           2D obstacle polygons (walls + furniture footprints), metres
-    preview.png              contact sheet and top-down view of the path over the room
+    preview.png              contact sheet (frames labelled with index and time) beside a top-down
+                             view of the path over the room
 
 With ``actor: true`` (``nsim capture synth --actor``) a person walks through the room and the
 handheld camera follows it instead (``nsim.synth.actor_capture``; ``low_pass_height_m`` unused);
@@ -35,6 +36,7 @@ they had before the phone model existed.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 from pathlib import Path
@@ -50,7 +52,7 @@ from nsim.synth.robot_log import RobotLogFaults
 from nsim.synth.room import ROOM_PRESETS
 
 STAGE = "capture"
-VERSION = 1
+VERSION = 2  # 2: video.mp4 in H.264 (was MPEG-4 Part 2); preview.png with labelled frames
 CAMERAS = ("pinhole", "fisheye")
 
 
@@ -196,13 +198,12 @@ def write_capture(
 ) -> None:
     """Render every frame and write the capture's files into ``out_dir``; through the phone model
     (``nsim.synth.phone``) when ``plan`` (a ``PhonePlan`` of ``cfg.phone``) is given."""
-    import cv2
-
     from nsim.io import atomic_path
     from nsim.io.exr import write_depth_exr
     from nsim.io.images import to_uint8, write_image
     from nsim.io.transforms_json import Frame, TransformsData, write_transforms
     from nsim.io.tum import Trajectory, write_tum
+    from nsim.io.video import open_mp4
     from nsim.synth import phone
     from nsim.synth.room import occupancy_polygons, room_diagonal_m
 
@@ -211,13 +212,10 @@ def write_capture(
     frames = []
     writer = None
     thumbs = []
+    video = contextlib.ExitStack()  # closes (finishes) the video after the last frame
     if cfg.video:
-        writer = cv2.VideoWriter(
-            str(out_dir / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), float(cfg.fps), (cfg.width, cfg.height)
-        )
-        if not writer.isOpened():
-            raise RuntimeError("OpenCV could not open an mp4v video writer")
-    with progress_bar(len(cam_to_world), f"rendering {cfg.room}", show_progress) as bar:
+        writer = video.enter_context(open_mp4(out_dir / "video.mp4", float(cfg.fps)))
+    with video, progress_bar(len(cam_to_world), f"rendering {cfg.room}", show_progress) as bar:
         for i, c2w in enumerate(cam_to_world):
             extra = {}
             if plan is None:
@@ -235,7 +233,7 @@ def write_capture(
                     tmp.write_bytes(phone.encode_jpeg(rgb_u8, cfg.phone.jpeg_quality))
             write_depth_exr(out_dir / "depth" / f"{name}.exr", depth_z.astype(np.float32))
             if writer is not None:
-                writer.write(cv2.cvtColor(rgb_u8, cv2.COLOR_RGB2BGR))
+                writer.write(rgb_u8)
             frames.append(
                 Frame(
                     file_path=f"images/{image_name}",
@@ -247,10 +245,8 @@ def write_capture(
                 )
             )
             if i % max(1, len(cam_to_world) // 8) == 0 and len(thumbs) < 8:
-                thumbs.append(rgb_u8)
+                thumbs.append((i, float(times_s[i]), rgb_u8))
             bar.advance()
-    if writer is not None:
-        writer.release()
     top = {"nsim_capture": STAGE}
     if plan is not None:
         top["nsim_phone"] = phone.capture_metadata(cfg.phone)
@@ -276,21 +272,27 @@ def write_capture(
 
 
 def write_preview(path: Path, thumbs, polygons, cam_to_world: np.ndarray, spec: Any, cfg: Config) -> None:
-    """Contact sheet of a few frames beside a top-down view of the path over the obstacles."""
+    """Contact sheet of a few frames (``thumbs``: ``(index, time_s, rgb)``; each labelled with its
+    index and time) beside a top-down view of the path over the obstacles, under a title."""
+    import cv2
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ncol = 4
-    nrow = max(1, (len(thumbs) + ncol - 1) // ncol)
-    fig = plt.figure(figsize=(13, max(3.5, 2.3 * nrow)), dpi=80)
-    grid = fig.add_gridspec(nrow, ncol + 2)
-    for k, im in enumerate(thumbs):
-        ax = fig.add_subplot(grid[k // ncol, k % ncol])
-        ax.imshow(im)
-        ax.set_axis_off()
-    ax = fig.add_subplot(grid[:, ncol:])
+    from nsim.io.images import write_image
+    from nsim.io.labels import add_label, tile_grid
+
+    thumb_w, dpi = 240, 80
+    tiles = []
+    for i, t_s, im in thumbs:
+        thumb_h = max(1, round(thumb_w * im.shape[0] / im.shape[1]))
+        interp = cv2.INTER_AREA if im.shape[1] > thumb_w else cv2.INTER_NEAREST
+        tiles.append(add_label(cv2.resize(im, (thumb_w, thumb_h), interpolation=interp), f"frame {i}  {t_s:.2f} s"))
+    sheet = tile_grid(tiles, ncol=4)
+    height = max(sheet.shape[0], 360)
+    fig = plt.figure(figsize=(6.0, height / dpi), dpi=dpi)
+    ax = fig.add_subplot()
     for poly in polygons:
         p = np.asarray(poly)
         ax.fill(p[:, 0], p[:, 1], color="0.6", alpha=0.8, lw=0)
@@ -305,18 +307,22 @@ def write_preview(path: Path, thumbs, polygons, cam_to_world: np.ndarray, spec: 
     ax.set_xlim(-0.3, sx + 0.3)
     ax.set_ylim(-0.3, sy + 0.3)
     ax.set_aspect("equal")
-    ax.set_title(f"{cfg.room}: {len(pos)} frames, {cfg.camera}")
+    ax.set_title("camera path from above")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     fig.tight_layout()
-    # Fixed metadata keeps the PNG bytes (and so the artifact id) identical across runs.
-    fig.savefig(path, metadata={"Software": None})
+    fig.canvas.draw()
+    top = np.array(fig.canvas.buffer_rgba())[..., :3]  # a copy: the buffer goes with the figure
     plt.close(fig)
+    rows = max(sheet.shape[0], top.shape[0])
+    out = np.concatenate([np.pad(im, ((0, rows - im.shape[0]), (0, 0), (0, 0)), constant_values=255)
+                          for im in (sheet, top)], axis=1)
+    write_image(path, add_label(out, f"{cfg.room}: {len(pos)} frames {cfg.width}x{cfg.height} {cfg.camera}"))
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(Inputs(), cfg, ctx).capture
 
 

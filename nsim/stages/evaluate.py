@@ -118,7 +118,7 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     files = manifest.get("summary", {}).get("files", {})
     renders = tuple(ids[f"render{k}"] for k in range(len(ids)))
     inputs = Inputs(renders=renders, **{k: Path(v) for k, v in files.items()})
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(inputs, from_dict(Config, manifest["config"]), ctx).evaluation
 
 

@@ -210,5 +210,5 @@ def _bounds(xyz: np.ndarray) -> list[list[float]] | None:
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(Inputs(scene=manifest["inputs"]["scene"]), cfg, ctx).export

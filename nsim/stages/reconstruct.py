@@ -276,7 +276,7 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
     reference, kd = _scale_inputs(inputs)
     capture_times: dict[str, float] = {}
     if inputs.capture is not None:
-        # the capture's lossless frames (its video is mp4v-compressed, as a phone's would be)
+        # the capture's lossless frames (its video is H.264-compressed, as a phone's would be)
         from nsim.io.transforms_json import read_transforms
 
         art = ctx.store.get(ctx.store.resolve(inputs.capture, kind="capture"))
@@ -425,7 +425,7 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     scale = summary.get("scale_inputs", {})
     kd = scale.get("known_distance")
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     inputs = Inputs(capture=manifest["inputs"]["capture"], known_distance=tuple(kd) if kd else None,
                     camera_height_m=scale.get("camera_height_m"))
     return run(inputs, cfg, ctx).poses

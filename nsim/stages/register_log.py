@@ -412,5 +412,5 @@ def write_preview(path: Path, poses_path: Path, plan: _Plan, records: list[dict]
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(Inputs(**manifest["inputs"]), cfg, ctx).registration

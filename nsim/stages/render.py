@@ -44,7 +44,7 @@ Artifact layout (``NNNNNN`` = tick index in the trajectory, or frame index in th
     preview/contact_sheet.png    every ``preview_every``-th frame: the cameras side by side + LiDAR BEV
                                  (recording mode: each camera's recorded frame beside the rendered one,
                                  the LiDAR's recorded points grey under the rendered ones)
-    preview/preview.mp4          (video: true) the same for every frame
+    preview/preview.mp4          (video: true) the same for every frame (H.264, ``nsim.io.video``)
 
 Recording mode mirrors the recording's layout, file for file, for the frames rendered (``NNNNNN``
 = the recording's own frame index, ``<name>`` the stream's)::
@@ -92,8 +92,9 @@ from nsim.errors import InputError
 from nsim.rendering.renderer import MarchConfig
 
 STAGE = "render"
-VERSION = 3  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
+VERSION = 4  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
 # 3: ``fill`` (no-return pixels over the training images' mean colour) and ``background``
+# 4: preview/preview.mp4 in H.264 (was MPEG-4 Part 2); contact sheet tiles labelled (nsim.io.labels)
 log = logging.getLogger(__name__)
 
 DEPTH_ATTRIBUTE = {
@@ -516,7 +517,7 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     rig_file = summary.get("rig_file")
     ids = manifest["inputs"]
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     inputs = Inputs(trajectory=ids.get("trajectory"), poses=ids.get("poses"), scene=ids.get("scene"),
                     rig=Path(rig_file) if rig_file else None,
                     humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")),
@@ -1087,11 +1088,12 @@ def _recording_people(out_dir: Path, inputs: Inputs, cfg: Config, streams: list[
 def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by_stream: dict[str, list[int]],
                      row: int, height: int = 160) -> np.ndarray:
     """Row ``row`` of the contact sheet: per camera stream its ``row``-th frame, recorded beside rendered;
-    per LiDAR stream a view from above, the recorded points grey under the rendered ones."""
+    per LiDAR stream a view from above, the recorded points grey under the rendered ones; each labelled."""
     import cv2
 
     from nsim.io.exr import read_points_exr
     from nsim.io.images import read_image
+    from nsim.io.labels import add_label
 
     def tile(path: Path) -> np.ndarray:
         im = read_image(path)
@@ -1105,9 +1107,11 @@ def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by
     for st in streams:
         if row >= len(by_stream[st["key"]]) or st["kind"] == "depth":
             continue
-        rel = f"{st['kind']}/{st['name']}/{by_stream[st['key']][row]:06d}"
+        index = by_stream[st["key"]][row]
+        rel = f"{st['kind']}/{st['name']}/{index:06d}"
         if st["kind"] == "camera":
-            tiles += [tile(recording_dir / f"{rel}.png"), tile(out_dir / f"{rel}.png")]
+            pair = np.concatenate([tile(recording_dir / f"{rel}.png"), tile(out_dir / f"{rel}.png")], axis=1)
+            tiles.append(add_label(pair, [f"{st['name']} #{index} recorded", "rendered"]))
         else:
             def xyz(path: Path) -> np.ndarray:
                 p = read_points_exr(path)
@@ -1115,8 +1119,9 @@ def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by
 
             img = _bev_points(xyz(recording_dir / f"{rel}.exr"), colour=(110, 110, 110))
             img = _bev_points(xyz(out_dir / f"{rel}.exr"), img=img)
-            tiles.append(cv2.resize(img, (height, height), interpolation=cv2.INTER_NEAREST))
-    return np.concatenate(tiles, axis=1) if tiles else np.zeros((height, height, 3), np.uint8)
+            tiles.append(add_label(cv2.resize(img, (height, height), interpolation=cv2.INTER_NEAREST),
+                                   f"{st['name']} #{index} (recorded grey)"))
+    return np.concatenate(tiles, axis=1) if tiles else add_label(np.zeros((height, height, 3), np.uint8), "no frame")
 
 
 def _bev(scan_path: Path, size: int = 240, extent_m: float = 10.0) -> np.ndarray:
@@ -1143,11 +1148,15 @@ def _bev_points(xyz: np.ndarray, img: np.ndarray | None = None, colour=None, siz
     return img
 
 
-def _frame_strip(out_dir: Path, rig, index: int, height: int = 160) -> np.ndarray:
+def _frame_strip(out_dir: Path, rig, index: int, time_s: float | None = None, height: int = 160) -> np.ndarray:
+    """One row of the contact sheet: frame ``index``'s camera images and LiDAR views from above, each
+    labelled with its sensor, the frame and (when known) its time."""
     import cv2
 
     from nsim.io.images import read_image
+    from nsim.io.labels import add_label
 
+    when = f" #{index}" + (f"  t {time_s:.2f} s" if time_s is not None else "")
     tiles = []
     names = [s.name for s in rig.sensors if s.type == "camera"] if rig is not None else ["frames"]
     for name in names:
@@ -1156,14 +1165,15 @@ def _frame_strip(out_dir: Path, rig, index: int, height: int = 160) -> np.ndarra
             im = read_image(p)
             if im.ndim == 2:
                 im = np.repeat(im[..., None], 3, -1)
-            tiles.append(cv2.resize(im, (max(1, round(im.shape[1] * height / im.shape[0])), height),
-                                    interpolation=cv2.INTER_AREA))
+            tiles.append(add_label(cv2.resize(im, (max(1, round(im.shape[1] * height / im.shape[0])), height),
+                                              interpolation=cv2.INTER_AREA), name + when))
     if rig is not None:
         for s in rig.sensors:
             p = out_dir / s.name / "scan" / f"{index:06d}.exr"
             if s.type == "lidar" and p.is_file():
-                tiles.append(cv2.resize(_bev(p), (height, height), interpolation=cv2.INTER_NEAREST))
-    return np.concatenate(tiles, axis=1) if tiles else np.zeros((height, height, 3), np.uint8)
+                tiles.append(add_label(cv2.resize(_bev(p), (height, height), interpolation=cv2.INTER_NEAREST),
+                                       s.name + when))
+    return np.concatenate(tiles, axis=1) if tiles else add_label(np.zeros((height, height, 3), np.uint8), when)
 
 
 def write_previews(out_dir: Path, rig, frames: list[dict], cfg: Config, strip=None) -> None:
@@ -1173,7 +1183,7 @@ def write_previews(out_dir: Path, rig, frames: list[dict], cfg: Config, strip=No
 
     if strip is None:
         def strip(f: dict) -> np.ndarray:
-            return _frame_strip(out_dir, rig, f["index"])
+            return _frame_strip(out_dir, rig, f["index"], f.get("time_s"))
     (out_dir / "preview").mkdir()
     picked = frames[:: cfg.preview_every][: cfg.preview_max_rows]
     strips = [strip(f) for f in picked]
@@ -1183,18 +1193,16 @@ def write_previews(out_dir: Path, rig, frames: list[dict], cfg: Config, strip=No
     if cfg.video and len(frames) > 1:
         import cv2
 
+        from nsim.io.video import open_mp4
+
         first = strip(frames[0])
         h, w = first.shape[:2]
-        path = out_dir / "preview" / "preview.mp4"
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), cfg.video_fps, (w, h))
-        try:
+        with open_mp4(out_dir / "preview" / "preview.mp4", cfg.video_fps) as video:
             for f in frames:
                 row = first if f is frames[0] else strip(f)
                 if row.shape[:2] != (h, w):
                     row = cv2.resize(row, (w, h))
-                writer.write(cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
-        finally:
-            writer.release()
+                video.write(row)
 
 
 # ---------------------------------------------------------------------------------- ROS 2 bag export

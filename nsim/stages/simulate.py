@@ -18,7 +18,8 @@ Artifact layout (``T`` ticks at ``t_k = k dt_s``, ``N`` humans)::
     scenario.json     the canonical resolved scenario (``load_scenario`` reads it back unchanged)
     occupancy.json    the 2D obstacle map used (the capture's layout)
     topdown.png       the run from above: obstacles, the robot's path, each human's path
-    run.mp4           (video: true) the run from above, OpenCV mp4v, ``fps`` frames per second
+    run.mp4           (video: true) the run from above, H.264 (``nsim.io.video``), ``fps`` frames per
+                      second, each frame labelled with the scenario and the time
 
 ``trajectory.npz`` holds ``nsim.crowd.CrowdTrajectory.as_arrays()`` (so
 ``CrowdTrajectory.from_arrays(np.load(path))`` restores it: ``time_s (T,)``, ``position_m (T, N, 2)``,
@@ -47,7 +48,7 @@ from nsim.crowd.behaviours import BEHAVIOUR_NAMES, BehaviourParams
 from nsim.crowd.social_force import ForceParams
 
 STAGE = "simulate"
-VERSION = 1
+VERSION = 2  # 2: run.mp4 in H.264 (was MPEG-4 Part 2), frames under a label strip
 
 # behaviour -> BGR colour for the video, and the matching matplotlib colour
 BEHAVIOUR_COLOURS = {
@@ -321,8 +322,12 @@ def _bgr(rgb: tuple[float, float, float], scale: float = 1.0) -> tuple[int, int,
 
 
 def write_video(path: Path, sc, sim, cfg: Config) -> None:
-    """The run from above at ``cfg.fps`` (every ``round(1 / (fps dt))`` ticks), OpenCV mp4v."""
+    """The run from above at ``cfg.fps`` (every ``round(1 / (fps dt))`` ticks), H.264, each frame
+    under a label strip (``nsim.io.labels``) with the scenario's name and the time."""
     import cv2
+
+    from nsim.io.labels import add_label
+    from nsim.io.video import open_mp4
 
     crowd = sim.crowd
     lo, hi = _map_bounds(sc, sim)
@@ -344,59 +349,46 @@ def write_video(path: Path, sc, sim, cfg: Config) -> None:
         cv2.fillPoly(background, [px(poly), *[px(h) for h in holes]], (190, 190, 190), cv2.LINE_AA, shift)
     stride = max(1, int(round(1.0 / (cfg.fps * sim.dt_s))))
     fps = 1.0 / (stride * sim.dt_s)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    if not writer.isOpened():
-        raise RuntimeError("OpenCV could not open an mp4v video writer")
     trail = max(1, int(round(3.0 / sim.dt_s)))
     colours = [_bgr(BEHAVIOUR_COLOURS[h.behaviour]) for h in sc.humans]
     light = [_bgr(BEHAVIOUR_COLOURS[h.behaviour], 1.6) for h in sc.humans]
     robot_xy = sim.robot_pose_se3[:, :2, 3]
-    for k in range(0, len(sim.time_s), stride):
-        frame = background.copy()
-        cv2.polylines(
-            frame, [px(robot_xy[max(0, k - trail) : k + 1])], False, (120, 120, 120), 1, cv2.LINE_AA, shift
-        )
-        for i in range(len(sc.humans)):
+    with open_mp4(path, fps) as writer:
+        for k in range(0, len(sim.time_s), stride):
+            frame = background.copy()
             cv2.polylines(
-                frame,
-                [px(crowd.position_m[max(0, k - trail) : k + 1, i])],
-                False,
-                light[i],
-                1,
-                cv2.LINE_AA,
-                shift,
+                frame, [px(robot_xy[max(0, k - trail) : k + 1])], False, (120, 120, 120), 1, cv2.LINE_AA, shift
             )
-        pose = sim.robot_pose_se3[k]
-        u = pose[:2, 0] * sc.robot.half_length_m
-        body = px(np.stack([pose[:2, 3] - u, pose[:2, 3] + u]))
-        thick = max(1, int(round(2 * sc.robot.radius_m * s)))
-        cv2.line(frame, tuple(body[0]), tuple(body[1]), _bgr(ROBOT_COLOUR), thick, cv2.LINE_AA, shift)
-        nose = px(pose[:2, 3] + pose[:2, 0] * (sc.robot.half_length_m + sc.robot.radius_m))
-        cv2.line(frame, tuple(px(pose[:2, 3])), tuple(nose), (0, 200, 255), 2, cv2.LINE_AA, shift)
-        for i, h in enumerate(sc.humans):
-            c = crowd.position_m[k, i]
-            r = int(round(h.radius_m * s * sub))
-            cv2.circle(frame, tuple(px(c)), r, colours[i], -1, cv2.LINE_AA, shift)
-            ring = (0, 0, 0) if crowd.behaviour_state[k, i] == 1 else (255, 255, 255)
-            cv2.circle(
-                frame, tuple(px(c)), r, ring, 2 if crowd.behaviour_state[k, i] == 1 else 1, cv2.LINE_AA, shift
-            )
-            head = c + h.radius_m * np.array(
-                [math.cos(crowd.heading_rad[k, i]), math.sin(crowd.heading_rad[k, i])]
-            )
-            cv2.line(frame, tuple(px(c)), tuple(px(head)), (255, 255, 255), 1, cv2.LINE_AA, shift)
-        cv2.putText(
-            frame,
-            f"{sc.name}  t = {sim.time_s[k]:5.1f} s",
-            (8, 18),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.45,
-            (0, 0, 0),
-            1,
-            cv2.LINE_AA,
-        )
-        writer.write(frame)
-    writer.release()
+            for i in range(len(sc.humans)):
+                cv2.polylines(
+                    frame,
+                    [px(crowd.position_m[max(0, k - trail) : k + 1, i])],
+                    False,
+                    light[i],
+                    1,
+                    cv2.LINE_AA,
+                    shift,
+                )
+            pose = sim.robot_pose_se3[k]
+            u = pose[:2, 0] * sc.robot.half_length_m
+            body = px(np.stack([pose[:2, 3] - u, pose[:2, 3] + u]))
+            thick = max(1, int(round(2 * sc.robot.radius_m * s)))
+            cv2.line(frame, tuple(body[0]), tuple(body[1]), _bgr(ROBOT_COLOUR), thick, cv2.LINE_AA, shift)
+            nose = px(pose[:2, 3] + pose[:2, 0] * (sc.robot.half_length_m + sc.robot.radius_m))
+            cv2.line(frame, tuple(px(pose[:2, 3])), tuple(nose), (0, 200, 255), 2, cv2.LINE_AA, shift)
+            for i, h in enumerate(sc.humans):
+                c = crowd.position_m[k, i]
+                r = int(round(h.radius_m * s * sub))
+                cv2.circle(frame, tuple(px(c)), r, colours[i], -1, cv2.LINE_AA, shift)
+                ring = (0, 0, 0) if crowd.behaviour_state[k, i] == 1 else (255, 255, 255)
+                cv2.circle(
+                    frame, tuple(px(c)), r, ring, 2 if crowd.behaviour_state[k, i] == 1 else 1, cv2.LINE_AA, shift
+                )
+                head = c + h.radius_m * np.array(
+                    [math.cos(crowd.heading_rad[k, i]), math.sin(crowd.heading_rad[k, i])]
+                )
+                cv2.line(frame, tuple(px(c)), tuple(px(head)), (255, 255, 255), 1, cv2.LINE_AA, shift)
+            writer.write(add_label(frame[..., ::-1], f"{sc.name}  t = {sim.time_s[k]:5.1f} s"))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -576,5 +568,5 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
         store=ctx.store,
     )
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(Inputs(sc), cfg, ctx).trajectory

@@ -33,7 +33,7 @@ from nsim.errors import InputError
 from nsim.train.human import TrainHumanConfig
 
 STAGE = "train_human"
-VERSION = 1
+VERSION = 2  # 2: held-out comparisons under a label strip (render | ground truth)
 Config = TrainHumanConfig
 
 
@@ -148,5 +148,5 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
         raise InputError("this human checkpoint was trained from a folder, which the workspace does not hold: "
                          "rerun nsim train-human --data on it with --force to compare")
     cfg = from_dict(Config, manifest["config"])
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(Inputs(capture=ids["capture"], scene=ids.get("scene")), cfg, ctx).human

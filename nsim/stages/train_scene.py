@@ -68,7 +68,8 @@ STAGE = "train_scene"
 # 4: the walkable map from the training rays (hits, carved haze; obstacle_density 1/m), depth/mask supervision keys
 # 6: the walkable map's rays followed only near the band, depth maps sized by pixel count (portrait photos)
 # 7: held-out appearance codes fitted together (the same fits, one batch), the walkable map skips the
-#    occupancy grid's empty cells (the same map), and a scene of arbitrary scale gets no walkable map
+#    occupancy grid's empty cells (the same map), a scene of arbitrary scale gets no walkable map, and
+#    the held-out comparisons carry a label strip (render | ground truth)
 VERSION = 7
 
 log = logging.getLogger(__name__)
@@ -233,5 +234,5 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     if inputs.registration is not None:  # the options are scene.json's record
         rec = json.loads(ctx.store.get(manifest["id"]).file("scene.json").read_text())["recording"]
         inputs = dataclasses.replace(inputs, recording=from_dict(RecordingConfig, rec["options"]))
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     return run(inputs, cfg, ctx).scene

@@ -26,8 +26,9 @@ Output layout (the capture artifact of ``nsim.stages.capture`` plus the person):
     room.json                 the room specification (rebuilds the oracle)
     occupancy.json            2D obstacle polygons (walls + furniture footprints)
     gt_trajectory.tum         camera-to-world poses, TUM format
-    video.mp4                 the frames as a video (when ``video``)
-    preview.png               contact sheet (mask outlines) and a top-down view of both paths
+    video.mp4                 the frames as a video (when ``video``; H.264, ``nsim.io.video``)
+    preview.png               contact sheet (mask outlines; frames labelled with index and time)
+                              and a top-down view of both paths
 """
 
 from __future__ import annotations
@@ -415,12 +416,11 @@ def render_actor_capture(out_dir: str | Path, cfg: ActorCaptureConfig = ActorCap
     frames (contiguous blocks, ``nsim.distributed.map_tasks``); the files do not depend on it.
     Returns ``ActorCapture``.
     """
-    import cv2
-
     from nsim.distributed import map_tasks
     from nsim.human.data import HumanPoses, write_poses
     from nsim.io.transforms_json import Frame, TransformsData, write_transforms
     from nsim.io.tum import Trajectory, write_tum
+    from nsim.io.video import write_mp4
     from nsim.progress import progress_bar
     from nsim.synth.path import timestamps_s
     from nsim.synth.room import make_room
@@ -450,13 +450,7 @@ def render_actor_capture(out_dir: str | Path, cfg: ActorCaptureConfig = ActorCap
             bar.advance(cfg.n_frames)
     fraction = np.array([float((mask > 0).mean()) for _, mask in rendered])
     if cfg.video:
-        writer = cv2.VideoWriter(str(out_dir / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), float(cfg.fps),
-                                 (cfg.width, cfg.height))
-        if not writer.isOpened():
-            raise RuntimeError("OpenCV could not open an mp4v video writer")
-        for rgb, _ in rendered:
-            writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        writer.release()
+        write_mp4(out_dir / "video.mp4", (rgb for rgb, _ in rendered), float(cfg.fps))
     names = [f"frame_{i:05d}" for i in range(cfg.n_frames)]
     frames = [Frame(file_path=f"images/{name}.png", cam_to_world=cam_to_world[i], camera=camera,
                     depth_file_path=f"depth/{name}.exr", timestamp_s=float(times[i]),
@@ -476,7 +470,7 @@ def render_actor_capture(out_dir: str | Path, cfg: ActorCaptureConfig = ActorCap
     write_tum(out_dir / "gt_trajectory.tum", Trajectory.from_poses(times, cam_to_world))
     _write_room_files(out_dir, spec, preset, cfg.room_seed if preset is not None else spec.seed)
     step = max(1, cfg.n_frames // 8)
-    thumbs = [rendered[i] for i in range(0, cfg.n_frames, step)][:8]
+    thumbs = [(i, float(times[i]), *rendered[i]) for i in range(0, cfg.n_frames, step)][:8]
     _write_preview(out_dir / "preview.png", thumbs, spec, walk_path, T[:, 0, :3, 3], cam_to_world, cfg)
     log.info("actor capture: %d frames, person in %.0f%% of them", cfg.n_frames, 100 * (fraction > 0).mean())
     return ActorCapture(out_dir=out_dir, cam_to_world=cam_to_world, joint_transforms=T, mask_fraction=fraction)
@@ -503,33 +497,34 @@ def _write_room_files(out_dir: Path, spec: RoomSpec, preset: str | None, room_se
     }, indent=1) + "\n")
 
 
-def _write_preview(path: Path, thumbs: list[tuple[np.ndarray, np.ndarray]], spec: RoomSpec, walk_path: np.ndarray,
-                   pelvis_xyz: np.ndarray, cam_to_world: np.ndarray, cfg: ActorCaptureConfig) -> None:
-    """Contact sheet (person outlined in cyan) beside a top-down map: obstacles grey, planned walk
-    dark grey, the person's pelvis red, the camera coloured by time (viridis) with view ticks.
+def _write_preview(path: Path, thumbs: list[tuple[int, float, np.ndarray, np.ndarray]], spec: RoomSpec,
+                   walk_path: np.ndarray, pelvis_xyz: np.ndarray, cam_to_world: np.ndarray,
+                   cfg: ActorCaptureConfig) -> None:
+    """Contact sheet (person outlined in cyan; ``thumbs``: ``(index, time_s, rgb, mask)``, each labelled
+    with its index and time) beside a top-down map: obstacles grey, planned walk dark grey, the
+    person's pelvis red, the camera coloured by time (viridis) with view ticks; a title above.
 
     Drawn with OpenCV (fast, and the PNG bytes are the same every run).
     """
     import cv2
 
     from nsim.io.images import write_image
+    from nsim.io.labels import add_label, tile_grid
     from nsim.synth.room import occupancy_polygons
 
-    ncol, thumb_w = 4, 240
-    h0, w0 = thumbs[0][0].shape[:2] if thumbs else (cfg.height, cfg.width)
+    ncol, thumb_w, pad = 4, 240, 4
+    h0, w0 = thumbs[0][2].shape[:2] if thumbs else (cfg.height, cfg.width)
     thumb_h = max(1, round(thumb_w * h0 / w0))
-    nrow = max(1, (len(thumbs) + ncol - 1) // ncol)
-    pad, title_h = 4, 24
-    sheet_h = nrow * (thumb_h + pad) + pad
-    sheet = np.full((sheet_h, ncol * (thumb_w + pad) + pad, 3), 255, dtype=np.uint8)
-    for k, (rgb, mask) in enumerate(thumbs):
+    tiles = []
+    for i, t_s, rgb, mask in thumbs:
         interp = cv2.INTER_AREA if w0 > thumb_w else cv2.INTER_NEAREST
         im = np.ascontiguousarray(cv2.resize(rgb, (thumb_w, thumb_h), interpolation=interp))
         m = cv2.resize((mask > 0).astype(np.uint8), (thumb_w, thumb_h), interpolation=cv2.INTER_NEAREST)
         contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(im, contours, -1, (0, 255, 255), 1)
-        y, x = pad + (k // ncol) * (thumb_h + pad), pad + (k % ncol) * (thumb_w + pad)
-        sheet[y:y + thumb_h, x:x + thumb_w] = im
+        tiles.append(add_label(im, f"frame {i}  {t_s:.2f} s"))
+    sheet = tile_grid(tiles, ncol, pad)
+    sheet_h = sheet.shape[0]
     # top-down map, as tall as the sheet
     X, Y, _ = spec.size_xyz_m
     margin_m = 0.3
@@ -557,10 +552,7 @@ def _write_preview(path: Path, thumbs: list[tuple[np.ndarray, np.ndarray]], spec
         if k % step == 0:
             cv2.line(top, tuple(int(c) for c in pos[k]), tuple(int(c) for c in tips[k]), colour, 1, cv2.LINE_AA)
         cv2.circle(top, tuple(int(c) for c in pos[k]), 2, colour, -1, cv2.LINE_AA)
-    out = np.full((sheet_h + title_h, sheet.shape[1] + map_w, 3), 255, dtype=np.uint8)
-    out[title_h:, :sheet.shape[1]] = sheet
-    out[title_h:, sheet.shape[1]:] = top
     title = (f"{spec.name}: {n} frames {cfg.width}x{cfg.height} {cfg.camera}; person {cfg.actor_height_m} m at "
              f"{cfg.actor_speed_mps} m/s (red), camera by time (viridis), planned walk (grey)")
-    cv2.putText(out, title, (pad, title_h - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    out = add_label(np.concatenate([sheet, top], axis=1), title)
     write_image(path, out)

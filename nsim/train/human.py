@@ -586,6 +586,7 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
     """
     from nsim.human.nerf import gait_frames, save_human_model, turntable
     from nsim.io.images import to_uint8, write_image
+    from nsim.io.labels import add_label
 
     trainer = result.trainer
     cfg = trainer.cfg
@@ -610,7 +611,8 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
         (out_dir / "eval").mkdir(exist_ok=True)
         for i, pred in ev["images"].items():
             write_image(out_dir / "eval" / f"frame_{i:05d}.png",
-                        np.concatenate([to_uint8(pred["rgb"]), trainer.data.images[i]], axis=1))
+                        add_label(np.concatenate([to_uint8(pred["rgb"]), trainer.data.images[i]], axis=1),
+                                  [f"frame {i} render", "ground truth"]))
         (out_dir / "eval.json").write_text(json.dumps({"views": ev["views"], "mean": ev["mean"]}, indent=1) + "\n")
         summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
     result.evaluation = summary

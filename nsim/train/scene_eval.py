@@ -384,9 +384,11 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
     """Scores of frames ``views`` of ``data`` (:class:`~nsim.train.scene_data.SceneData`) at
     ``cfg.image_side`` (0: as captured), one view at a time (:func:`score_view`; the ground truth read
     again at that size). ``fit_generator(frame)``: the generator of that frame's fit pixels.
-    ``image_dir``: each render beside its ground truth is written there (``frame_NNNNN.png``).
+    ``image_dir``: each render beside its ground truth is written there (``frame_NNNNN.png``, under a
+    label strip ``<image name> render | ground truth``, ``nsim.io.labels``).
     Returns ``views`` (one row each), ``mean``, ``resolution`` (scored and captured ``[w, h]``) and ``protocol``."""
     from nsim.io.images import to_uint8, write_image
+    from nsim.io.labels import add_label
 
     codes: dict[int, Tensor] = {}
     if final and cfg.fit_steps > 0 and model.field.appearance is not None:
@@ -415,7 +417,9 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
         save = None
         if image_dir is not None:
             def save(rgb, i=i, gt=gt):
-                write_image(Path(image_dir) / f"frame_{i:05d}.png", np.concatenate([to_uint8(rgb), gt], axis=1))
+                write_image(Path(image_dir) / f"frame_{i:05d}.png",
+                            add_label(np.concatenate([to_uint8(rgb), gt], axis=1),
+                                      [f"{data.names[i]} render", "ground truth"]))
         row = score_view(model, frame_view(model, data.cam_to_world[i], camera), gt, data.eval_depth_z(i, camera),
                          chunk, cfg, final, fit_generator(int(i)), pool, save, code=codes.get(i))
         rows.append({"frame": int(i), "name": data.names[i], **row})

@@ -12,7 +12,6 @@ from nsim.crowd.behaviours import BehaviourParams
 from nsim.crowd.neighbours import neighbour_pairs, segments_from_polygons
 from nsim.crowd.social_force import (
     ForceParams,
-    RobotState,
     agent_repulsion,
     desired_force,
     desired_velocity,
@@ -25,6 +24,7 @@ from nsim.crowd.social_force import (
     robot_repulsion,
     robot_view,
 )
+from nsim.crowd.state import RobotState
 from tests.crowd.reference import agent_repulsion_loop, obstacle_repulsion_loop, pair_force_numeric
 
 P = ForceParams(agent_strength_mps2=2.0, agent_range_m=0.5, anisotropy=0.3, agent_lookahead_s=1.0)

@@ -9,7 +9,8 @@ import pytest
 
 from nsim.errors import InputError
 from nsim.human.deepmimic import FRAME_COLUMNS, deepmimic_motion_path, read_deepmimic, read_deepmimic_nsim
-from nsim.human.motion import LocomotionLoop, load_motion
+from nsim.human.motion import LocomotionLoop
+from nsim.human.motion_io import load_motion
 
 
 def _frames(n: int = 4, speed: float = 1.0, knee: float = -0.6) -> list[list[float]]:

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.human.bvh import BVH_Y_UP_TO_NSIM, read_bvh
-from nsim.human.motion import load_motion
+from nsim.human.motion_io import load_motion
 from nsim.human.retarget import JointMap, default_joint_map, load_joint_map, retarget, rotation_between
 from nsim.human.skeleton import nsim_skeleton
 

@@ -191,7 +191,7 @@ def test_failed_shard_resumes_and_matches_a_clean_run(world, tmp_path, monkeypat
     monkeypatch.setattr(render.ShardRenderer, "render_shard", real)
     out = render.run(inputs, cfg, ctx, engine=EngineConfig())
     assert out.shards_reused == 1 and out.shards_rendered == 1
-    ctx.force = True
+    ctx = dataclasses.replace(ctx, force=True)
     again = render.run(inputs, cfg, ctx, engine=EngineConfig())
     assert again.render == out.render and again.shards_reused == 0
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from nsim.io.labels import LABEL_HEIGHT_PX
 from nsim.train.scene import SceneTrainer, export_scene, train_scene
 from nsim.train.scene_eval import (
     PROTOCOL_HALF,
@@ -146,7 +147,7 @@ def test_eval_json_scores_the_asked_resolution_and_the_half_protocol(tiny_data, 
     assert summary["eval_image_size"] == [32, 24] and "eval_psnr_half" in summary
     from nsim.io.images import read_image
 
-    assert read_image(tmp_path / "out" / "eval" / "frame_00000.png").shape == (24, 64, 3)  # render | truth
+    assert read_image(tmp_path / "out" / "eval" / "frame_00000.png").shape == (24 + LABEL_HEIGHT_PX, 64, 3)  # label strip over render | truth
     scene = json.loads((tmp_path / "out" / "scene.json").read_text())
     assert scene["metric"] is True and scene["units"] == "m" and scene["units_per_m"] == 1.0
     assert json.loads((tmp_path / "out" / "bounds.json").read_text())["metric"] is True
