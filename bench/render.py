@@ -10,7 +10,8 @@ Uses the default capture (robot-lab, 320x240, ground-truth poses) and a scene ch
 Measures, with the same renderer the stage uses (marching + occupancy grid):
 
 1. held-out capture views (``nsim render --poses``, ``frames=heldout``): PSNR / SSIM against
-   the captured images, depth AbsRel of the median depth against the capture's z-depth, beside
+   the captured images, depth AbsRel (``nsim.metrics.depth``, see ``abs_rel``) of the median depth
+   against the capture's z-depth, beside
    train-scene's own held-out PSNR (``eval.json``; the proposal renderer);
 2. LiDAR: Spot's VLP-16-like LiDAR along the simulated ``spot_run``, no noise, against the
    oracle's exact scan from the same poses: median / p95 range error where both return;
@@ -65,8 +66,16 @@ SPOT = configs_dir() / "robots" / "spot.yaml"
 
 
 def abs_rel(pred: np.ndarray, gt: np.ndarray) -> float:
-    ok = np.isfinite(pred) & np.isfinite(gt) & (gt > 0.05)
-    return float(np.mean(np.abs(pred[ok] - gt[ok]) / gt[ok])) if ok.any() else float("nan")
+    """AbsRel of ``nsim.metrics.depth`` (its default ``DepthConfig``: ground truth within 1 mm..10 m,
+    predictions clamped into that range, so a rendered ``inf`` counts as 10 m) over the pixels whose
+    prediction is a number (NaN: no ray, or nearer than the camera's minimum depth); NaN if none counts."""
+    from nsim.metrics.depth import DepthConfig, depth_metrics, valid_depth_mask
+
+    cfg = DepthConfig()
+    scored = ~np.isnan(pred)
+    if not (scored & valid_depth_mask(gt, cfg)).any():
+        return float("nan")
+    return depth_metrics(pred, gt, cfg, scored).abs_rel
 
 
 def psnr_ssim(pred_u8: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
@@ -196,7 +205,7 @@ def score_spot(ctx: RunContext, art_id: str, oracle, seen=None) -> dict:
         for s in rig.sensors:
             if s.type == "lidar":
                 scan = read_lidar_exr(art.file(f"{s.name}/scan/{i:06d}.exr"))
-                gt = oracle.lidar_gt(s.world_pose(T), s.config)
+                gt = oracle.lidar_gt(s.world_pose(T), s)  # the sensor: its own beams, as the render's
                 both = np.isfinite(scan.range_m) & np.isfinite(gt.ranges_m)
                 lidar_err.append(np.abs(scan.range_m[both] - gt.ranges_m[both]))
                 row = table.setdefault(s.name, {"hit_agreement": []})

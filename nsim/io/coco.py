@@ -29,6 +29,7 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.io import atomic_path
+from nsim.io.images import _decode, _encode_atomic
 
 PERSON_CATEGORY = {"id": 1, "name": "person", "supercategory": "person"}
 MAX_INSTANCES = 65535
@@ -56,28 +57,13 @@ def _check_mask(mask: np.ndarray) -> np.ndarray:
 
 def write_instance_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
     """Write ``mask (H, W)`` integer ids (0 = background) as a 16-bit PNG, atomically; returns ``path``."""
-    path = Path(path)
-    mask = _check_mask(mask).astype(np.uint16)
-    ok, buf = cv2.imencode(".png", mask)
-    if not ok:
-        raise ValueError(f"{path}: OpenCV cannot encode the instance mask")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.tobytes())
-    return path
+    return _encode_atomic(Path(path), _check_mask(mask).astype(np.uint16), ".png")
 
 
 def read_instance_mask(path: str | os.PathLike) -> np.ndarray:
     """Read an instance-mask PNG as ``(H, W)`` uint16 ids (an 8-bit grey PNG is widened)."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except OSError as err:
-        raise InputError(f"{path}: cannot read ({err.strerror})") from None
-    mask = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-    if mask is None:
-        raise InputError(f"{path}: not a readable image")
+    mask = _decode(path, cv2.IMREAD_UNCHANGED)
     if mask.ndim != 2 or mask.dtype not in (np.uint8, np.uint16):
         raise InputError(f"{path}: expected a single-channel 8/16-bit instance mask, got {mask.dtype} {mask.shape}")
     return mask.astype(np.uint16)

@@ -51,20 +51,26 @@ def _read_bytes(path: Path) -> np.ndarray:
 
 
 def _decode(path: Path, flags: int) -> np.ndarray:
+    """The image in file ``path`` as OpenCV decodes it with ``flags`` (its channel order, its dtype).
+
+    InputError naming the file when it is missing, unreadable, empty or not a decodable image.
+    """
     image = cv2.imdecode(_read_bytes(path), flags)
     if image is None:
         raise InputError(f"{path}: not a readable image (corrupt or unsupported format)")
     return image
 
 
-def _encode_atomic(path: Path, image: np.ndarray) -> Path:
-    """Encode `image` (OpenCV channel order) by the extension of `path` and write it atomically."""
+def _encode_atomic(path: Path, image: np.ndarray, ext: str | None = None) -> Path:
+    """Encode `image` (OpenCV channel order) as `ext` (default: the extension of `path`, e.g. ".png") and
+    write it atomically; ValueError when OpenCV cannot encode it."""
+    ext = path.suffix if ext is None else ext
     try:
-        ok, buf = cv2.imencode(path.suffix, image)
+        ok, buf = cv2.imencode(ext, image)
     except cv2.error:
         ok = False
     if not ok:
-        raise ValueError(f"{path}: OpenCV cannot encode {image.dtype} {image.shape} as {path.suffix!r}")
+        raise ValueError(f"{path}: OpenCV cannot encode {image.dtype} {image.shape} as {ext!r}")
     with atomic_path(path) as tmp:
         tmp.write_bytes(buf.tobytes())
     return path

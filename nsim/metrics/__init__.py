@@ -6,11 +6,23 @@ agreement, Chamfer distance; ``trajectory``: ATE and RPE (evo's definitions); ``
 or an external TUM file) on simulated vs real frames, both ATEs and their difference; ``detection``: box
 IoU, matching, HOG / ONNX / COCO-JSON detections on simulated vs real frames; ``tables``: Markdown,
 text, LaTeX (booktabs), CSV and JSON with n/a for values that could not be computed; ``paper_tables``:
-the paper's five tables and plots from per-frame records. Bad input raises ``nsim.errors.InputError``;
-missing LPIPS weights raise ``LpipsUnavailable``. ``slam`` imports pycolmap only when SLAM runs.
+the paper's five tables and plots from per-frame records. Each metric is defined here once (PSNR:
+``image.psnr_from_mse``; AbsRel: ``depth.scored_depths`` and ``depth.abs_rel``) and called, never
+copied, elsewhere. Bad input raises ``nsim.errors.InputError`` (images: floating point in [0, 1], or
+[0, data_range], of equal shape; uint8 or [-1, 1] images are refused); missing LPIPS weights raise
+``LpipsUnavailable``. ``slam`` imports pycolmap only when SLAM runs.
 """
 
-from nsim.metrics.depth import DepthConfig, DepthMetrics, depth_metrics, mean_depth_metrics, valid_depth_mask
+from nsim.metrics.depth import (
+    DepthConfig,
+    DepthErrors,
+    DepthMetrics,
+    abs_rel,
+    depth_error_map,
+    depth_metrics,
+    mean_depth_metrics,
+    valid_depth_mask,
+)
 from nsim.metrics.detection import (
     DetectionComparison,
     Detections,
@@ -28,7 +40,7 @@ from nsim.metrics.detection import (
     nms,
     read_coco_detections,
 )
-from nsim.metrics.image import psnr, ssim
+from nsim.metrics.image import psnr, psnr_from_mse, ssim
 from nsim.metrics.lidar import ChamferResult, LidarRangeMetrics, chamfer_distance, lidar_range_metrics
 from nsim.metrics.lpips import LpipsUnavailable, load_lpips, lpips_distance, lpips_or_na, unavailable_reason
 from nsim.metrics.paper_tables import (
@@ -56,6 +68,7 @@ __all__ = [
     "ChamferResult",
     "Column",
     "DepthConfig",
+    "DepthErrors",
     "DepthMetrics",
     "DepthRecord",
     "DetectionComparison",
@@ -75,6 +88,7 @@ __all__ = [
     "SlamRun",
     "Table",
     "YoloDecodeConfig",
+    "abs_rel",
     "align_trajectories",
     "ate",
     "box_iou",
@@ -83,6 +97,7 @@ __all__ = [
     "compare_detections",
     "compare_slam",
     "decode_yolo",
+    "depth_error_map",
     "depth_metrics",
     "detection_table",
     "evaluate_detection",
@@ -98,6 +113,7 @@ __all__ = [
     "plot_depth_error_map",
     "plot_per_frame",
     "psnr",
+    "psnr_from_mse",
     "read_coco_detections",
     "rpe",
     "rpe_per_delta",

@@ -13,6 +13,10 @@ as in Monodepth2's evaluation, predictions are clamped into ``[min_depth_m, max_
 hits nothing, depth +inf, counts as ``max_depth_m``). Depth here is whatever the pair shares (z-depth
 or range along the ray); both maps must use the same. NaN/inf in the ground truth just marks pixels
 invalid; NaN in the prediction at a valid pixel is an error, as is a comparison with no valid pixel.
+
+These are the only definitions: ``scored_depths`` selects, scales and clamps the pixels;
+``depth_metrics`` computes every error from them, ``abs_rel`` AbsRel alone and ``depth_error_map`` the
+per-pixel ``|p - g| / g`` (whose mean is AbsRel).
 """
 
 from __future__ import annotations
@@ -46,10 +50,10 @@ class DepthConfig:
             )
 
 
-@dataclass(frozen=True)
-class DepthMetrics:
-    """Depth errors over ``n_valid`` pixels; the prediction was multiplied by ``scale`` (1.0 unless
-    ``median_scaled``).
+@dataclass(frozen=True, kw_only=True)
+class DepthErrors:
+    """The errors of the module docstring, by the names every depth result carries (``DepthMetrics``
+    here, ``nsim.metrics.paper_tables.DepthRecord`` per frame); ``rmse_m`` in metres, the rest unitless.
     """
 
     abs_rel: float
@@ -61,6 +65,14 @@ class DepthMetrics:
     delta_1_25: float
     delta_1_25_2: float
     delta_1_25_3: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class DepthMetrics(DepthErrors):
+    """Depth errors over ``n_valid`` pixels; the prediction was multiplied by ``scale`` (1.0 unless
+    ``median_scaled``). Keyword-only, like its base.
+    """
+
     n_valid: int
     median_scaled: bool
     scale: float
@@ -88,16 +100,14 @@ def valid_depth_mask(gt_m: np.ndarray, cfg: DepthConfig) -> np.ndarray:
         return np.isfinite(gt_m) & (gt_m >= cfg.min_depth_m) & (gt_m <= cfg.max_depth_m)
 
 
-def depth_metrics(
-    pred_m: np.ndarray,
-    gt_m: np.ndarray,
-    cfg: DepthConfig = DepthConfig(),
-    mask: np.ndarray | None = None,
-) -> DepthMetrics:
-    """Errors of ``pred_m`` against ``gt_m`` (both (H, W) metres) over valid pixels (module docstring).
+def scored_depths(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DepthConfig(),
+                  mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The pixels every depth metric scores, as the module docstring defines them.
 
-    mask: optional (H, W) bool restricting the pixels further. Raises InputError for differing sizes,
-    an empty mask, NaN in the prediction at a valid pixel, or no valid pixel at all.
+    Returns ``(valid, p, g, scale)``: valid (H, W) bool, the valid pixels' prediction ``p`` (median-scaled
+    by ``scale`` if ``cfg.median_scaling``, then clamped into ``[min_depth_m, max_depth_m]``) and ground
+    truth ``g``, both (n_valid,) float64. Raises InputError for differing sizes, an empty mask, NaN in
+    the prediction at a valid pixel, or no valid pixel at all.
     """
     pred_m, gt_m = np.asarray(pred_m, dtype=np.float64), np.asarray(gt_m, dtype=np.float64)
     if pred_m.shape != gt_m.shape:
@@ -129,11 +139,30 @@ def depth_metrics(
             raise InputError(f"depth: cannot median-scale, median prediction is {median_p}")
         scale = float(np.median(g)) / median_p
         p = p * scale
-    p = np.clip(p, cfg.min_depth_m, cfg.max_depth_m)
+    return valid, np.clip(p, cfg.min_depth_m, cfg.max_depth_m), g, scale
+
+
+def _relative_error(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``|p - g| / g`` per pixel: AbsRel is its mean."""
+    return np.abs(p - g) / g
+
+
+def depth_metrics(
+    pred_m: np.ndarray,
+    gt_m: np.ndarray,
+    cfg: DepthConfig = DepthConfig(),
+    mask: np.ndarray | None = None,
+) -> DepthMetrics:
+    """Errors of ``pred_m`` against ``gt_m`` (both (H, W) metres) over valid pixels (module docstring).
+
+    mask: optional (H, W) bool restricting the pixels further. Raises InputError for differing sizes,
+    an empty mask, NaN in the prediction at a valid pixel, or no valid pixel at all.
+    """
+    valid, p, g, scale = scored_depths(pred_m, gt_m, cfg, mask)
     ratio = np.maximum(p / g, g / p)
     deltas = [float(np.mean(ratio < t)) for t in DELTA_THRESHOLDS]
     return DepthMetrics(
-        abs_rel=float(np.mean(np.abs(p - g) / g)),
+        abs_rel=float(np.mean(_relative_error(p, g))),
         sq_rel=float(np.mean((p - g) ** 2 / g)),
         rmse_m=float(np.sqrt(np.mean((p - g) ** 2))),
         log_rmse=float(np.sqrt(np.mean((np.log(p) - np.log(g)) ** 2))),
@@ -146,6 +175,27 @@ def depth_metrics(
         median_scaled=cfg.median_scaling,
         scale=scale,
     )
+
+
+def abs_rel(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DepthConfig(),
+            mask: np.ndarray | None = None) -> float:
+    """AbsRel alone, ``mean(|p - g| / g)`` over the pixels of ``scored_depths`` (the one definition:
+    ``depth_metrics(...).abs_rel``). Raises InputError as ``depth_metrics`` does.
+    """
+    _, p, g, _ = scored_depths(pred_m, gt_m, cfg, mask)
+    return float(np.mean(_relative_error(p, g)))
+
+
+def depth_error_map(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DepthConfig(),
+                    mask: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) relative error ``|p - g| / g`` at the pixels ``depth_metrics`` scores (median scaling and
+    clamping per ``cfg``), NaN where a pixel does not count; its mean is AbsRel. Raises InputError as
+    ``depth_metrics`` does.
+    """
+    valid, p, g, _ = scored_depths(pred_m, gt_m, cfg, mask)
+    out = np.full(valid.shape, np.nan)
+    out[valid] = _relative_error(p, g)
+    return out
 
 
 def mean_depth_metrics(per_frame: Sequence[DepthMetrics]) -> DepthMetrics:

@@ -1,8 +1,15 @@
 """Image fidelity: PSNR and SSIM over whole images or a mask (LPIPS lives in ``nsim.metrics.lpips``).
 
-Images are channels-last ``(H, W)`` or ``(H, W, C)`` arrays with values in ``[0, data_range]``
-(default 1.0: float images in [0, 1]); both images of a pair must have the same shape. A mask is an
-``(H, W)`` bool array selecting the pixels that count (e.g. the human's box).
+Images are channels-last ``(H, W)`` or ``(H, W, C)`` floating-point arrays with values in
+``[0, data_range]`` (default 1.0: float images in [0, 1]); both images of a pair must have the same
+shape. Anything else is an InputError naming the argument, never a silently wrong number: an 8-bit
+image (convert it with ``nsim.io.images.to_float``) or one in [-1, 1] would otherwise score as a
+different image. ``RANGE_TOLERANCE`` (relative to ``data_range``) admits rounding just outside the
+range, e.g. ``x * 255 / 255``. A mask is an ``(H, W)`` bool array selecting the pixels that count
+(e.g. the human's box).
+
+PSNR is ``psnr_from_mse``: the one formula, also for callers that already hold an MSE (a training
+batch's loss).
 
 SSIM is scikit-image's ``structural_similarity`` with the settings of Wang et al. 2004 (and of the
 NeRF literature): an 11x11 Gaussian window with sigma 1.5, population covariances, K1 = 0.01,
@@ -24,13 +31,24 @@ from nsim.errors import InputError
 SSIM_SIGMA = 1.5  # Gaussian window: scikit-image truncates at 3.5 sigma -> 11x11
 SSIM_GAUSSIAN_WIN = 11
 SSIM_UNIFORM_WIN = 7
+RANGE_TOLERANCE = 1e-6  # of data_range: values within it outside [0, data_range] still pass
 
 
 def check_image_pair(
-    pred: np.ndarray, target: np.ndarray, what: str = "images"
+    pred: np.ndarray, target: np.ndarray, what: str = "images", data_range: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Both as float64 arrays of the same shape; InputError for differing sizes or NaN/inf."""
+    """Both as float64 arrays of the same shape.
+
+    InputError (one line, naming ``pred`` or ``target``) for a non-floating dtype (uint8, bool, int),
+    differing sizes, NaN/inf, or values outside ``[0, data_range]`` (give or take ``RANGE_TOLERANCE``).
+    """
     pred, target = np.asarray(pred), np.asarray(target)
+    for name, image in (("pred", pred), ("target", target)):
+        if image.dtype.kind != "f":
+            hint = " (8-bit images: nsim.io.images.to_float)" if image.dtype == np.uint8 else ""
+            raise InputError(
+                f"{what}: {name} must be a floating-point image in [0, {data_range:g}], got dtype {image.dtype}{hint}"
+            )
     if pred.shape != target.shape:
         raise InputError(f"{what} differ in size: pred {pred.shape} vs target {target.shape}")
     if pred.ndim not in (2, 3) or pred.size == 0:
@@ -38,6 +56,13 @@ def check_image_pair(
     pred, target = pred.astype(np.float64), target.astype(np.float64)
     if not (np.isfinite(pred).all() and np.isfinite(target).all()):
         raise InputError(f"{what} contain NaN or inf")
+    slack = RANGE_TOLERANCE * data_range
+    for name, image in (("pred", pred), ("target", target)):
+        lo, hi = float(image.min()), float(image.max())
+        if lo < -slack or hi > data_range + slack:
+            raise InputError(
+                f"{what}: {name} values must lie in [0, {data_range:g}], got [{lo:.6g}, {hi:.6g}]"
+            )
     return pred, target
 
 
@@ -60,18 +85,28 @@ def _check_data_range(data_range: float) -> None:
         raise ValueError(f"data_range: expected a finite value > 0, got {data_range!r}")
 
 
+def psnr_from_mse(mse: float, data_range: float = 1.0) -> float:
+    """Peak signal-to-noise ratio in dB of a mean squared error: ``10 log10(data_range^2 / mse)``;
+    ``inf`` for ``mse == 0``. ValueError for a negative or non-finite ``mse``.
+    """
+    _check_data_range(data_range)
+    mse = float(mse)
+    if not (math.isfinite(mse) and mse >= 0.0):
+        raise ValueError(f"mse: expected a finite value >= 0, got {mse!r}")
+    return math.inf if mse == 0.0 else 10.0 * math.log10(data_range**2 / mse)
+
+
 def psnr(
     pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None, data_range: float = 1.0
 ) -> float:
-    """Peak signal-to-noise ratio in dB: ``10 log10(data_range^2 / MSE)``, MSE over every channel of the
-    selected pixels. ``inf`` for identical images.
+    """Peak signal-to-noise ratio in dB (``psnr_from_mse``), MSE over every channel of the selected
+    pixels. ``inf`` for identical images.
     """
     _check_data_range(data_range)
-    pred, target = check_image_pair(pred, target)
+    pred, target = check_image_pair(pred, target, data_range=data_range)
     mask = check_mask(mask, pred.shape[:2])
     sq = (pred - target) ** 2
-    mse = float(np.mean(sq if mask is None else sq[mask]))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(data_range**2 / mse)
+    return psnr_from_mse(float(np.mean(sq if mask is None else sq[mask])), data_range)
 
 
 def ssim(
@@ -86,7 +121,7 @@ def ssim(
     Raises InputError for images smaller than the window or a mask with no pixel off the border.
     """
     _check_data_range(data_range)
-    pred, target = check_image_pair(pred, target)
+    pred, target = check_image_pair(pred, target, data_range=data_range)
     mask = check_mask(mask, pred.shape[:2])
     win = SSIM_GAUSSIAN_WIN if gaussian else SSIM_UNIFORM_WIN
     if min(pred.shape[:2]) < win:

@@ -348,16 +348,18 @@ def lpips_distance(
     weights_dir: str | os.PathLike | None = None,
     device: str = "cpu",
 ) -> float:
-    """LPIPS distance between two RGB images, (H, W, 3) in [0, 1] (mapped to [-1, 1] as lpips expects).
+    """LPIPS distance between two RGB images, (H, W, 3) floating point in [0, 1] (mapped here to the
+    [-1, 1] lpips expects: pass [0, 1] images, never uint8 or already-mapped ones).
 
     net: "alex" or "vgg". mask: optional (H, W) bool; each layer's distance map is then averaged with
     weights given by the mask's area-average over that layer's cells (so an all-True mask gives exactly
     the unmasked value; trunk features still see context outside the mask -- crop both images to the
-    box instead where that matters). Computed in float32 like the reference. Raises InputError for
+    box instead where that matters). Computed in float32 like the reference. Raises InputError
+    (``nsim.metrics.image.check_image_pair``: dtype, range, size) for non-float, out-of-[0, 1],
     mismatched or too-small images or an empty mask, LpipsUnavailable without weights.
     """
     _check_net(net)
-    pred, target = check_image_pair(pred, target)
+    pred, target = check_image_pair(pred, target, "LPIPS images")
     if pred.ndim != 3 or pred.shape[2] != 3:
         raise InputError(f"LPIPS: expected (H, W, 3) RGB images, got {pred.shape}")
     h, w = pred.shape[:2]

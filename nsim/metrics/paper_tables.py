@@ -6,8 +6,8 @@ typo never drops a value silently):
 * ``ImageRecord(group, frame, psnr_db, ssim, lpips)``: one rendered frame against its ground truth;
   ``group`` is the environment (``scenes``) or the Spot camera (``spot-rgb``). ``lpips`` may be
   ``NotAvailable(reason)`` (no weights) or None (not computed).
-* ``DepthRecord(group, frame, abs_rel, ..., median_scaled)``: ``nsim.metrics.depth`` errors of one
-  depth frame (``DepthRecord.from_metrics``).
+* ``DepthRecord(group, frame, median_scaled, abs_rel=..., ...)``: the ``nsim.metrics.depth`` errors
+  (``DepthErrors``) of one depth frame (``DepthRecord.from_metrics``).
 * ``SlamRecord(sequence, ate_real_m, ate_sim_m, registered_real, registered_sim)``: one sequence
   (e.g. one Spot camera) of the SLAM experiment (``SlamComparison.record``).
 * ``DetectionRecord(scene, frame, n_sim, n_real, ious, detector)``: one frame of the detection
@@ -23,7 +23,8 @@ ground-truth frames (checking that the frame counts agree).
 Builders (``TABLE_BUILDERS`` by the names ``nsim evaluate --table`` uses): ``scenes_table``,
 ``spot_rgb_table``, ``spot_depth_table``, ``slam_table``, ``detection_table``, each returning a
 ``nsim.metrics.tables.Table``. Plots (matplotlib, Agg canvas, no pyplot state), each written
-atomically as a PNG and returning its path: ``plot_per_frame``, ``plot_bars``, ``plot_depth_error_map``.
+atomically as a PNG and returning its path: ``plot_per_frame``, ``plot_bars``, ``plot_depth_error_map``
+(of ``nsim.metrics.depth.depth_error_map``).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from nsim.errors import InputError
-from nsim.metrics.depth import DepthConfig, DepthMetrics, depth_metrics, valid_depth_mask
+from nsim.metrics.depth import DepthConfig, DepthErrors, DepthMetrics, depth_error_map, depth_metrics
 from nsim.metrics.tables import Column, NotAvailable, Table
 
 # --------------------------------------------------------------------------------------
@@ -60,20 +61,13 @@ class ImageRecord:
 
 
 @dataclass(frozen=True)
-class DepthRecord:
-    """Depth errors of one frame (``nsim.metrics.depth``; ``rmse_m`` in metres)."""
+class DepthRecord(DepthErrors):
+    """Depth errors of one frame: ``group``, ``frame``, ``median_scaled`` and, by keyword, the fields of
+    ``nsim.metrics.depth.DepthErrors`` (``abs_rel``, ..., ``delta_1_25_3``).
+    """
 
     group: str
     frame: int
-    abs_rel: float
-    sq_rel: float
-    rmse_m: float
-    log_rmse: float
-    delta_1_05: float
-    delta_1_10: float
-    delta_1_25: float
-    delta_1_25_2: float
-    delta_1_25_3: float
     median_scaled: bool = False
 
     @classmethod
@@ -109,10 +103,11 @@ class DetectionRecord:
 
 _NUMBER_FIELDS = {
     ImageRecord: ("psnr_db", "ssim", "lpips"),
-    DepthRecord: tuple(f for f in DepthRecord.__dataclass_fields__ if f not in ("group", "frame", "median_scaled")),
+    DepthRecord: tuple(f.name for f in dataclasses.fields(DepthErrors)),
     SlamRecord: ("ate_real_m", "ate_sim_m", "registered_real", "registered_sim"),
     DetectionRecord: (),
 }
+_LABEL_FIELD = {ImageRecord: "group", DepthRecord: "group", SlamRecord: "sequence", DetectionRecord: "scene"}
 
 
 def _coerce(cls: type, record: object, table: str, k: int) -> Any:
@@ -139,7 +134,7 @@ def _coerce(cls: type, record: object, table: str, k: int) -> Any:
             raise InputError(f"{where}: {name}: expected a number, got {value!r}")
         if math.isnan(value):
             raise InputError(f"{where}: {name} is NaN")
-    label = dataclasses.fields(cls)[0].name  # group / sequence / scene
+    label = _LABEL_FIELD[cls]
     if not isinstance(getattr(record, label), str):
         raise InputError(f"{where}: {label}: expected a string, got {getattr(record, label)!r}")
     if cls is DetectionRecord:
@@ -272,9 +267,8 @@ DEPTH_COLUMNS = (
     Column("δ<1.25", "higher", 3, r"$\delta_{1.25}$"), Column("δ<1.25²", "higher", 3, r"$\delta_{1.25^2}$"),
     Column("δ<1.25³", "higher", 3, r"$\delta_{1.25^3}$"),
 )
-_DEPTH_FIELDS = dict(zip([c.name for c in DEPTH_COLUMNS], ["abs_rel", "sq_rel", "rmse_m", "log_rmse", "delta_1_05",
-                                                           "delta_1_10", "delta_1_25", "delta_1_25_2",
-                                                           "delta_1_25_3"], strict=True))
+#: Column name -> DepthErrors field (the columns list the errors in their order).
+_DEPTH_FIELDS = dict(zip([c.name for c in DEPTH_COLUMNS], _NUMBER_FIELDS[DepthRecord], strict=True))
 #: Depth columns of the scenes table (a summary; the spot-depth table has them all).
 SCENE_DEPTH_COLUMNS = ("AbsRel", "RMSE [m]", "δ<1.25")
 FRAMES = Column("frames")
@@ -549,20 +543,6 @@ def plot_bars(path: str | os.PathLike, table: Table, metrics: Sequence[str] | No
     fig.suptitle(title or table.title, fontsize="medium")
     fig.tight_layout()
     return _save(fig, path)
-
-
-def depth_error_map(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DEFAULT_DEPTH_CFG,
-                    mask: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) relative error ``|p - g| / g`` exactly as ``depth_metrics`` sees the pixels (median
-    scaling and clamping per ``cfg``), NaN where a pixel does not count. Same errors as ``depth_metrics``.
-    """
-    scale = depth_metrics(pred_m, gt_m, cfg, mask).scale  # validates sizes, NaN, empty masks
-    pred, gt = np.asarray(pred_m, dtype=np.float64), np.asarray(gt_m, dtype=np.float64)
-    valid = valid_depth_mask(gt, cfg) if mask is None else valid_depth_mask(gt, cfg) & mask
-    out = np.full(gt.shape, np.nan)
-    p = np.clip(pred[valid] * scale, cfg.min_depth_m, cfg.max_depth_m)
-    out[valid] = np.abs(p - gt[valid]) / gt[valid]
-    return out
 
 
 def plot_depth_error_map(path: str | os.PathLike, pred_m: np.ndarray, gt_m: np.ndarray,

@@ -346,26 +346,43 @@ def render_camera(model: SceneModel, camera, cam_to_world: np.ndarray | Tensor, 
                         accumulation=out.accumulation.view(h, w).cpu().numpy(), samples=out.samples)
 
 
+def lidar_rays(model: SceneModel, lidar_to_world: np.ndarray, lidar) -> tuple[Rays, tuple[int, int]]:
+    """Rays of every beam of ``lidar`` at ``lidar_to_world (4, 4)`` (LiDAR frame x forward, y left, z up).
+
+    lidar: a ``nsim.sensors.lidar.LidarConfig`` (beams evenly over its vertical FoV) or a rig's
+    ``LidarSensor`` (its own beams, explicit ``vertical_angles_deg`` included): the beams are
+    ``beams_and_config(lidar)``'s, as the oracle's ``lidar_gt``'s. Returns the rays, row-major over the
+    range image (index ``ring * A + a``), with ``[near, far]`` within ``[min_range_m, max_range_m]``,
+    and the range image's shape ``(channels, azimuth_samples)``.
+    """
+    from nsim.sensors.lidar import beams_and_config
+
+    beams, cfg_lidar = beams_and_config(lidar)
+    device = model.aabb.device
+    pose = torch.as_tensor(np.asarray(lidar_to_world, dtype=np.float32), device=device)
+    d = torch.as_tensor(beams.directions().reshape(-1, 3), dtype=torch.float32, device=device) @ pose[:3, :3].T
+    origins = pose[:3, 3].expand_as(d)
+    cfg = model.sampler_cfg
+    rays = make_rays(origins, d, max(cfg.near_m, cfg_lidar.min_range_m), min(cfg.far_m, cfg_lidar.max_range_m),
+                     model.aabb if cfg.clip_rays_to_box else None)
+    return rays, beams.shape
+
+
 def render_lidar(model: SceneModel, lidar_to_world: np.ndarray, lidar, method: str = AUTO,
                  grid: OccupancyGrid | None = None, march_cfg: MarchConfig = MarchConfig(), chunk: int = 8192,
                  min_accumulation: float = 0.5, use_median: bool = True) -> np.ndarray:
-    """Range image ``(channels, azimuth_samples)`` float32 of a spinning LiDAR
-    (``nsim.sensors.lidar.LidarConfig``; LiDAR frame x forward, y left, z up).
+    """Range image ``(channels, azimuth_samples)`` float32 of a spinning LiDAR: a
+    ``nsim.sensors.lidar.LidarConfig`` or a rig's ``LidarSensor`` (beams: :func:`lidar_rays`).
 
     A beam returns the median (or expected) depth of its ray; ``inf`` when the ray's opacity is
     below ``min_accumulation`` or the range is outside ``[min_range_m, max_range_m]``.
     """
-    from nsim.sensors.lidar import beam_directions
+    from nsim.sensors.lidar import beams_and_config
 
-    device = model.aabb.device
-    pose = torch.as_tensor(np.asarray(lidar_to_world, dtype=np.float32), device=device)
-    d = torch.as_tensor(beam_directions(lidar).reshape(-1, 3), dtype=torch.float32, device=device) @ pose[:3, :3].T
-    origins = pose[:3, 3].expand_as(d)
-    cfg = model.sampler_cfg
-    rays = make_rays(origins, d, max(cfg.near_m, lidar.min_range_m), min(cfg.far_m, lidar.max_range_m),
-                     model.aabb if cfg.clip_rays_to_box else None)
+    cfg_lidar = beams_and_config(lidar)[1]
+    rays, shape = lidar_rays(model, lidar_to_world, lidar)
     out = render_rays(model, rays, method, grid, march_cfg, chunk)
     r = out.depth_median if use_median else out.depth
-    ok = (out.accumulation >= min_accumulation) & (r >= lidar.min_range_m) & (r <= lidar.max_range_m)
-    r = torch.where(ok, r, torch.tensor(float("inf"), device=device))
-    return r.view(lidar.channels, lidar.azimuth_samples).cpu().numpy().astype(np.float32)
+    ok = (out.accumulation >= min_accumulation) & (r >= cfg_lidar.min_range_m) & (r <= cfg_lidar.max_range_m)
+    r = torch.where(ok, r, torch.tensor(float("inf"), device=r.device))
+    return r.view(shape).cpu().numpy().astype(np.float32)

@@ -52,7 +52,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 from pathlib import Path
 from typing import Any, ClassVar
@@ -65,7 +65,7 @@ from nsim.errors import ConfigError, NsimError
 from nsim.geometry.cameras import MODELS, Camera
 from nsim.geometry.transforms import is_rotation, make_se3, matrix_from_quat_wxyz
 from nsim.sensors.depth import DepthConfig, apply_depth_model, range_to_z_depth
-from nsim.sensors.lidar import LidarConfig, beam_azimuths_rad, beam_directions
+from nsim.sensors.lidar import BeamPattern, LidarConfig
 from nsim.sensors.urdf import Urdf, load_urdf, rpy_to_matrix
 
 SENSOR_TYPES = ("camera", "depth", "lidar")
@@ -120,22 +120,50 @@ class IntrinsicsSpec:
 
 
 @dataclass(frozen=True)
-class LidarSpec:
-    """A LiDAR's ``lidar`` block (extends ``LidarConfig`` with explicit beam angles and dropout).
+class LidarSpec(LidarConfig):
+    """A LiDAR's ``lidar`` block: :class:`~nsim.sensors.lidar.LidarConfig` (its keys and defaults) plus
+    explicit beam angles and dropout.
 
-    vertical_angles_deg: explicit beam elevations (sorted ascending into rows, ring 0 lowest; must
-    be distinct); when given, ``channels`` (if set) must match their count and
-    ``vertical_fov_deg`` is ignored. dropout_prob: chance that a return is lost (range -> inf).
+    vertical_angles_deg: explicit beam elevations (sorted ascending into rows, ring 0 lowest; must be
+    distinct); when given, ``channels`` (if set) must match their count, and ``channels`` and
+    ``vertical_fov_deg`` become their count and span (a written ``vertical_fov_deg`` is ignored).
+    channels: unset (None) means the angles' count, else ``LidarConfig``'s default.
+    dropout_prob: chance that a return is lost (range -> inf).
     """
 
-    channels: int = param(16, ge=1)
-    vertical_fov_deg: tuple[float, float] = (-15.0, 15.0)
+    channels: int | None = param(None, ge=1)
     vertical_angles_deg: tuple[float, ...] | None = None
-    azimuth_samples: int = param(1800, ge=1)
-    min_range_m: float = param(0.1, ge=0.0)
-    max_range_m: float = param(100.0, gt=0.0)
-    range_noise_std_m: float = param(0.0, ge=0.0)
     dropout_prob: float = param(0.0, ge=0.0, lt=1.0)
+
+    def __post_init__(self) -> None:
+        if self.vertical_angles_deg is not None:
+            try:
+                beams = BeamPattern.from_angles(self.vertical_angles_deg, self.azimuth_samples)
+            except ValueError as exc:  # name the block's key, not BeamPattern's field
+                key, _, message = str(exc).partition(": ")
+                key = {"elevations_deg": "vertical_angles_deg"}.get(key.split(".")[-1], key.split(".")[-1])
+                raise ValueError(f"LidarSpec.{key}: {message}") from None
+            if self.channels is not None and self.channels != beams.channels:
+                raise ValueError(f"LidarSpec.channels: {self.channels} channels but {beams.channels} vertical_angles_deg")
+            object.__setattr__(self, "vertical_angles_deg", beams.elevations_deg)
+            object.__setattr__(self, "channels", beams.channels)
+            object.__setattr__(self, "vertical_fov_deg", (beams.elevations_deg[0], beams.elevations_deg[-1]))
+        elif self.channels is None:
+            object.__setattr__(self, "channels", LidarConfig.__dataclass_fields__["channels"].default)
+        super().__post_init__()
+        if not (0.0 <= self.dropout_prob < 1.0):
+            raise ValueError(f"LidarSpec.dropout_prob: expected 0 <= p < 1, got {self.dropout_prob!r}")
+
+    @property
+    def beams(self) -> BeamPattern:
+        """The explicit ``vertical_angles_deg`` when given, else ``LidarConfig``'s even spread."""
+        if self.vertical_angles_deg is None:
+            return super().beams
+        return BeamPattern(self.vertical_angles_deg, self.azimuth_samples)
+
+    def config(self) -> LidarConfig:
+        """The ``LidarConfig`` part (its fields only): a ``LidarSensor``'s ``config``."""
+        return LidarConfig(**{f.name: getattr(self, f.name) for f in fields(LidarConfig)})
 
 
 # --------------------------------------------------------------------------------------
@@ -322,9 +350,14 @@ class OrganizedScan:
 class LidarSensor(Sensor):
     """A spinning LiDAR. Sensor frame x forward, y left, z up (``nsim.sensors.lidar``).
 
-    config: the ``LidarConfig`` (when ``elevations_deg`` are evenly spread, exactly the sensor, so
-    ``render_lidar`` / the oracle's ``lidar_gt`` can take it); elevations_deg: ``(C,)`` ascending,
-    the beams' elevations (row ``c`` = ring ``c``); dropout_prob: chance a return is lost.
+    config: range, noise and azimuth settings (``LidarConfig``); its ``channels`` and
+    ``vertical_fov_deg`` are the beams' count and span. elevations_deg: ``(C,)`` ascending, the beams'
+    elevations (row ``c`` = ring ``c``), read-only; dropout_prob: chance a return is lost.
+
+    ``beams`` (elevations_deg x ``config.azimuth_samples``) is where this LiDAR's beams point: its
+    rays, and what ``render_lidar`` and the oracle's ``lidar_gt`` scan with when given the sensor.
+    Give them the sensor, not ``config``: ``config.beams`` are spread evenly, which explicit
+    ``vertical_angles_deg`` are not.
     """
 
     config: LidarConfig
@@ -332,25 +365,35 @@ class LidarSensor(Sensor):
     dropout_prob: float = 0.0
     type: ClassVar[str] = "lidar"
 
+    def __post_init__(self) -> None:
+        el = np.array(self.elevations_deg, dtype=np.float64)  # a copy: the caller's array stays writable
+        el.setflags(write=False)
+        object.__setattr__(self, "elevations_deg", el)
+        beams = self.beams  # checks the elevations (ascending, distinct, within [-90, 90])
+        cfg = self.config
+        if beams.channels != cfg.channels or (beams.elevations_deg[0], beams.elevations_deg[-1]) != cfg.vertical_fov_deg:
+            raise ValueError(f"sensor {self.name!r}: {beams.channels} elevations spanning "
+                             f"[{beams.elevations_deg[0]:g}, {beams.elevations_deg[-1]:g}] deg, but config has "
+                             f"{cfg.channels} channels over {list(cfg.vertical_fov_deg)} deg")
+
+    @cached_property
+    def beams(self) -> BeamPattern:
+        """The beam pattern: ``elevations_deg`` (rows) x ``config.azimuth_samples`` (columns)."""
+        return BeamPattern(tuple(self.elevations_deg.tolist()), self.config.azimuth_samples)
+
     @property
     def ray_shape(self) -> tuple[int, int]:
-        return (len(self.elevations_deg), self.config.azimuth_samples)
+        return self.beams.shape
 
     @property
     def evenly_spaced(self) -> bool:
-        """Whether the beams are ``beam_elevations_deg(config)`` (evenly over the vertical FoV)."""
-        low, high = self.config.vertical_fov_deg
-        return bool(np.array_equal(self.elevations_deg, np.linspace(low, high, self.config.channels)))
+        """Whether the beams are ``config.beams`` (evenly over the vertical FoV)."""
+        return self.beams == self.config.beams
 
     @cached_property
     def dirs_sensor(self) -> np.ndarray:
-        """Unit beam directions ``(C, A, 3)``: ``(cos t sin p, sin t sin p, cos p)``, ``p = 90 deg - elevation``."""
-        if self.evenly_spaced:
-            return _readonly(beam_directions(self.config))
-        phi = np.radians(90.0 - self.elevations_deg)[:, None]
-        theta = beam_azimuths_rad(self.config)[None, :]
-        d = np.stack(np.broadcast_arrays(np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)), -1)
-        return _readonly(d)
+        """Unit beam directions ``(C, A, 3)`` (``BeamPattern.directions``), read-only."""
+        return _readonly(self.beams.directions())
 
     def measure(self, range_m: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
         """The ranges ``(C, A)`` float32 this LiDAR reports for exact ranges ``range_m (C, A)`` (inf = miss).
@@ -439,7 +482,7 @@ class Rig:
             pose = _readonly(np.asarray(d["sensor_to_body"], dtype=np.float64))
             if d["type"] == "lidar":
                 sensors.append(LidarSensor(name=d["name"], sensor_to_body=pose, config=from_dict(LidarConfig, d["lidar"]),
-                                           elevations_deg=_readonly(np.asarray(d["elevations_deg"], dtype=np.float64)),
+                                           elevations_deg=np.asarray(d["elevations_deg"], dtype=np.float64),
                                            dropout_prob=float(d["dropout_prob"])))
             else:
                 depth = None if d.get("depth") is None else from_dict(DepthConfig, d["depth"])
@@ -528,6 +571,8 @@ class _RigParser:
         except ConfigError as exc:
             msg = str(exc).removeprefix(f"{cls.__name__}: ")
             key, _, rest = msg.partition(": ")
+            for base in cls.__mro__:  # a __post_init__ error names its class: LidarConfig.max_range_m
+                key = key.removeprefix(f"{base.__name__}.")
             top = key.split(".")[0].split("[")[0]
             line_path = path + (top,) if top in data else path
             block = ".".join(str(k) for k in path[2:])
@@ -692,35 +737,8 @@ class _RigParser:
 
     def lidar(self, name: str, sensor_to_body: np.ndarray, raw: Any, path: tuple) -> LidarSensor:
         spec: LidarSpec = self.block(LidarSpec, raw, path, name)
-        channels = spec.channels
-        if spec.vertical_angles_deg is not None:
-            angles = np.asarray(spec.vertical_angles_deg, dtype=np.float64)
-            if angles.size == 0:
-                raise self.fail(path + ("vertical_angles_deg",), "a LiDAR needs at least one beam, got none", name)
-            if "channels" in raw and spec.channels != angles.size:
-                raise self.fail(path + ("channels",),
-                                f"{spec.channels} channels but {angles.size} vertical_angles_deg", name)
-            if not np.all(np.isfinite(angles)) or np.any(np.abs(angles) > 90.0):
-                raise self.fail(path + ("vertical_angles_deg",), "expected finite elevations within [-90, 90]", name)
-            angles = np.sort(angles)
-            if np.any(np.diff(angles) == 0.0):
-                raise self.fail(path + ("vertical_angles_deg",), "elevations must be distinct", name)
-            channels = int(angles.size)
-            fov = (float(angles[0]), float(angles[-1]))
-        else:
-            fov = spec.vertical_fov_deg
-            angles = None
-        try:
-            cfg = LidarConfig(channels=channels, vertical_fov_deg=fov, azimuth_samples=spec.azimuth_samples,
-                              min_range_m=spec.min_range_m, max_range_m=spec.max_range_m,
-                              range_noise_std_m=spec.range_noise_std_m)
-        except ValueError as exc:
-            key = str(exc).split(":", 1)[0].removeprefix("LidarConfig.")
-            raise self.fail(path + (key,), str(exc).split(": ", 1)[-1], name) from None
-        if angles is None:
-            angles = np.linspace(fov[0], fov[1], channels)
-        return LidarSensor(name=name, sensor_to_body=_readonly(sensor_to_body), config=cfg,
-                           elevations_deg=_readonly(angles), dropout_prob=spec.dropout_prob)
+        return LidarSensor(name=name, sensor_to_body=_readonly(sensor_to_body), config=spec.config(),
+                           elevations_deg=np.asarray(spec.beams.elevations_deg), dropout_prob=spec.dropout_prob)
 
 
 def load_rig(path: str | Path) -> Rig:

@@ -20,14 +20,18 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nsim.sensors.lidar import LidarConfig, beam_directions
+from nsim.sensors.lidar import LidarConfig, beams_and_config
 from nsim.synth.actor import Actor, ActorHits, composite_actors
 from nsim.synth.raycast import DEFAULT_LIGHTING, Lighting, RayHits, cast
 from nsim.synth.room import RoomSpec
 from nsim.synth.textures import RoomTextures, bake_room_textures
+
+if TYPE_CHECKING:
+    from nsim.sensors.rig import LidarSensor
 
 
 @dataclass(frozen=True, eq=False)
@@ -347,18 +351,23 @@ class RoomOracle:
                                instance_mask=instance_mask, part_id=part_id, soft_masks=soft,
                                room_rgb=np.ascontiguousarray(room_rgb, dtype=np.float32) if placed else rgb)
 
-    def lidar_gt(self, lidar_to_world: np.ndarray, lidar: LidarConfig,
+    def lidar_gt(self, lidar_to_world: np.ndarray, lidar: LidarConfig | LidarSensor,
                  rng: np.random.Generator | None = None,
                  actors: Sequence[PlacedActor | tuple[Actor, np.ndarray]] | None = None) -> LidarScan:
         """Exact scan of a LiDAR at ``lidar_to_world (4, 4)`` (LiDAR frame x fwd, y left, z up).
 
-        With ``lidar.range_noise_std_m > 0`` Gaussian noise from ``rng`` (required then) is
+        lidar: a ``LidarConfig`` (beams evenly over its vertical FoV) or a rig's ``LidarSensor``
+        (its own beams, explicit ``vertical_angles_deg`` included, and its config's ranges): the
+        beams are ``nsim.sensors.lidar.beams_and_config(lidar)``'s, as ``render_lidar``'s. Rows of
+        the scan are its rings (ascending elevation), columns its azimuths.
+        With ``range_noise_std_m > 0`` Gaussian noise from ``rng`` (required then) is
         added to every range before the min/max range gate; draws do not depend on the scene.
         ``actors`` (see ``render_gt``) return beams like any surface.
         """
         pose = _check_pose("lidar_gt: lidar_to_world", lidar_to_world)
         placed = _placed_actors(actors, "lidar_gt")
-        dirs_lidar = beam_directions(lidar)  # (C, A, 3)
+        beams, cfg = beams_and_config(lidar)
+        dirs_lidar = beams.directions()  # (C, A, 3)
         dirs_world = _rotate(pose[:3, :3], dirs_lidar.reshape(-1, 3))
         origins = np.broadcast_to(pose[:3, 3], dirs_world.shape)
         hits = cast(self.spec, origins, dirs_world, None, lighting=self.lighting)
@@ -372,12 +381,12 @@ class RoomOracle:
                                  self.lighting, lamp) for actor, T, _ in placed])
             t, actor_index = comp.t, comp.actor_index
             surface_id = np.where(actor_index >= 0, -1, surface_id)
-        ranges = t.reshape(lidar.channels, lidar.azimuth_samples)
-        if lidar.range_noise_std_m > 0.0:
+        ranges = t.reshape(beams.shape)
+        if cfg.range_noise_std_m > 0.0:
             if rng is None:
                 raise ValueError("lidar_gt: range_noise_std_m > 0 needs a seeded rng (np.random.Generator)")
-            ranges = ranges + rng.normal(0.0, lidar.range_noise_std_m, size=ranges.shape)
-        returned = np.isfinite(ranges) & (ranges >= lidar.min_range_m) & (ranges <= lidar.max_range_m)
+            ranges = ranges + rng.normal(0.0, cfg.range_noise_std_m, size=ranges.shape)
+        returned = np.isfinite(ranges) & (ranges >= cfg.min_range_m) & (ranges <= cfg.max_range_m)
         ranges = np.where(returned, ranges, np.inf)
         points = np.where(returned[..., None], np.where(returned, ranges, 0.0)[..., None] * dirs_lidar, np.nan)
         surface = np.where(returned, surface_id.reshape(ranges.shape), -1)

@@ -43,7 +43,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 import os
 import time
 from collections.abc import Callable
@@ -59,6 +58,7 @@ from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.skeleton import Skeleton, pose_aabb
+from nsim.metrics.image import psnr, psnr_from_mse
 from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
 from nsim.train import checkpoint
@@ -421,7 +421,7 @@ class HumanTrainer(ResumableTrainer):
         dt = time.perf_counter() - t0
         self.train_seconds += dt
         mse_f = float(mse.detach())
-        return StepStats(self.step, float(loss.detach()), -10.0 * math.log10(max(mse_f, 1e-12)), dt, extra)
+        return StepStats(self.step, float(loss.detach()), psnr_from_mse(max(mse_f, 1e-12)), dt, extra)
 
     # ------------------------------------------------------------------ checkpoints
     def meta(self) -> dict[str, Any]:
@@ -500,11 +500,6 @@ class HumanTrainer(ResumableTrainer):
 
 
 # ====================================================================== metrics
-def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    mse = float(np.mean((np.asarray(pred, np.float64) - np.asarray(gt, np.float64)) ** 2))
-    return float("inf") if mse == 0 else -10.0 * math.log10(mse)
-
-
 def mask_iou(pred: np.ndarray, gt: np.ndarray) -> float:
     """Intersection over union of two boolean masks (1 when both are empty)."""
     union = np.logical_or(pred, gt).sum()

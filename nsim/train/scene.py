@@ -56,7 +56,7 @@ from torch import Tensor
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
-from nsim.metrics.image import psnr, ssim
+from nsim.metrics.image import psnr, psnr_from_mse, ssim
 from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
@@ -528,7 +528,7 @@ class SceneTrainer(ResumableTrainer):
         dt = time.perf_counter() - t0
         self.train_seconds += dt
         mse_f = float(mse.detach())
-        return StepStats(step=self.step, loss=float(loss.detach()), psnr=-10.0 * math.log10(max(mse_f, 1e-12)), seconds=dt,
+        return StepStats(step=self.step, loss=float(loss.detach()), psnr=psnr_from_mse(max(mse_f, 1e-12)), seconds=dt,
                          extra=extra)
 
     def _parts(self, n: int) -> list[slice]:

@@ -90,3 +90,22 @@ def test_bad_files_are_input_errors(tmp_path):
         load_coco_boxes(bad)
     with pytest.raises(InputError, match="no such file"):
         read_instance_mask(tmp_path / "none.png")
+
+
+def test_bad_mask_files_are_input_errors(tmp_path, mask):
+    """The mask reader shares nsim.io.images' file reading: every bad file is one InputError line."""
+    empty, corrupt, rgb = tmp_path / "empty.png", tmp_path / "corrupt.png", tmp_path / "rgb.png"
+    empty.write_bytes(b"")
+    corrupt.write_bytes(b"\x89PNG not really")
+    from nsim.io.images import write_image
+
+    write_image(rgb, np.zeros((4, 5, 3), np.uint8))
+    with pytest.raises(InputError, match="empty.png: empty file"):
+        read_instance_mask(empty)
+    with pytest.raises(InputError, match="corrupt.png: not a readable image"):
+        read_instance_mask(corrupt)
+    with pytest.raises(InputError, match="rgb.png: expected a single-channel 8/16-bit instance mask"):
+        read_instance_mask(rgb)
+    # written as PNG whatever the name says, the bytes of a .png
+    other = write_instance_mask(tmp_path / "mask.bin", mask)
+    assert other.read_bytes() == write_instance_mask(tmp_path / "mask.png", mask).read_bytes()

@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 
 from nsim.errors import InputError
-from nsim.metrics.depth import DepthConfig, depth_metrics, mean_depth_metrics, valid_depth_mask
+from nsim.metrics.depth import (
+    DepthConfig,
+    abs_rel,
+    depth_error_map,
+    depth_metrics,
+    mean_depth_metrics,
+    scored_depths,
+    valid_depth_mask,
+)
 
 
 def test_known_pair():
@@ -97,3 +105,41 @@ def test_bad_input():
         depth_metrics(pred, gt)
     with pytest.raises(ValueError, match="max_depth_m"):
         DepthConfig(min_depth_m=5.0, max_depth_m=1.0)
+
+
+# ---- AbsRel: one definition (abs_rel, depth_metrics and depth_error_map agree) -----------------------
+
+
+def test_abs_rel_known_values_and_the_one_rule():
+    gt = np.array([[1.0, 2.0, 4.0], [5.0, np.nan, 0.0], [20.0, 2.0, 2.0]])
+    pred = np.array([[1.1, 2.0, 3.0], [5.0, 9.0, 9.0], [9.0, np.inf, 0.0]])
+    # valid ground truth: finite and in [1e-3, 10] m -> 1, 2, 4, 5, 2, 2 (NaN, 0 and 20 m are left out);
+    # the prediction is clamped into the range: inf -> 10 m, 0 -> 1 mm
+    expected = (0.1 / 1 + 0 + 1 / 4 + 0 + 8 / 2 + (2 - 1e-3) / 2) / 6
+    assert abs_rel(pred, gt) == pytest.approx(expected, abs=1e-15)
+    assert depth_metrics(pred, gt).abs_rel == abs_rel(pred, gt)
+    err = depth_error_map(pred, gt)
+    assert np.isnan(err).tolist() == [[False] * 3, [False, True, True], [True, False, False]]
+    assert err[0].tolist() == pytest.approx([0.1, 0.0, 0.25], abs=1e-15)
+    assert float(np.nanmean(err)) == pytest.approx(expected, abs=1e-15)
+    mask = np.zeros(gt.shape, bool)
+    mask[0] = True
+    assert abs_rel(pred, gt, mask=mask) == pytest.approx((0.1 + 0 + 0.25) / 3, abs=1e-15)
+    scaled = DepthConfig(median_scaling=True)
+    assert abs_rel(gt[:1] * 3.0, gt[:1], scaled) == pytest.approx(0.0, abs=1e-15)
+    assert abs_rel(gt[:1] * 3.0, gt[:1], scaled) == depth_metrics(gt[:1] * 3.0, gt[:1], scaled).abs_rel
+
+
+def test_scored_depths_and_abs_rel_refuse_what_depth_metrics_refuses():
+    gt = np.full((3, 4), 2.0)
+    valid, p, g, scale = scored_depths(np.full((3, 4), 50.0), gt)
+    assert valid.all() and p.tolist() == [10.0] * 12 and g.tolist() == [2.0] * 12 and scale == 1.0
+    pred = gt.copy()
+    pred[0, 0] = np.nan
+    for fn in (abs_rel, depth_error_map):
+        with pytest.raises(InputError, match="NaN at 1 valid pixel"):
+            fn(pred, gt)
+        with pytest.raises(InputError, match="no valid pixel"):
+            fn(gt, np.full((3, 4), np.nan))
+        with pytest.raises(InputError, match="differ in size"):
+            fn(gt[:2], gt)

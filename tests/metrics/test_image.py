@@ -9,7 +9,8 @@ import pytest
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from nsim.errors import InputError
-from nsim.metrics.image import psnr, ssim
+from nsim.io.images import to_float, to_uint8
+from nsim.metrics.image import psnr, psnr_from_mse, ssim
 
 
 @pytest.fixture
@@ -112,3 +113,77 @@ def test_ssim_bad_input(pair):
     border[:3] = True
     with pytest.raises(InputError, match="border"):
         ssim(pred, target, mask=border)
+
+
+# ---- one definition, and refusing images that are not float in [0, data_range] ---------------------
+
+
+def test_psnr_from_mse_is_the_formula():
+    assert psnr_from_mse(0.01) == pytest.approx(20.0, abs=1e-12)
+    assert psnr_from_mse(0.0001) == pytest.approx(40.0, abs=1e-12)
+    assert psnr_from_mse(0.01 * 255.0**2, data_range=255.0) == pytest.approx(20.0, abs=1e-12)
+    assert psnr_from_mse(0.0) == math.inf
+    for bad in (-1e-3, math.nan, math.inf):
+        with pytest.raises(ValueError, match="mse"):
+            psnr_from_mse(bad)
+
+
+def test_psnr_of_8bit_levels_hand_computed():
+    # Two 8-bit images, one level apart everywhere but one pixel five levels apart.
+    a = np.full((4, 5, 3), 100, np.uint8)
+    b = a.copy()
+    b[...] = 101
+    b[0, 0] = (105, 105, 105)
+    mse = (57 * 1 + 3 * 25) / 60 / 255.0**2  # 132 / 60 levels squared
+    expected = 10.0 * math.log10(1.0 / mse)
+    assert psnr(to_float(b), to_float(a)) == pytest.approx(expected, abs=1e-4)  # float32 levels
+    assert psnr(b / 255.0, a / 255.0) == pytest.approx(expected, abs=1e-10)
+    assert expected == pytest.approx(44.707, abs=1e-3)
+
+
+@pytest.mark.parametrize("metric", [psnr, ssim])
+def test_uint8_images_are_refused(metric, pair):
+    pred, target = pair
+    pred_u8, target_u8 = to_uint8(pred), to_uint8(target)
+    with pytest.raises(InputError, match=r"pred must be a floating-point image in \[0, 1\], got dtype uint8") as err:
+        metric(pred_u8, target)
+    assert "\n" not in str(err.value) and "to_float" in str(err.value)
+    with pytest.raises(InputError, match=r"target must be a floating-point image in \[0, 1\], got dtype uint8"):
+        metric(pred, target_u8)
+    with pytest.raises(InputError, match="got dtype uint8"):  # even with the 8-bit data range
+        metric(pred_u8, target_u8, data_range=255.0)
+    with pytest.raises(InputError, match="got dtype bool"):
+        metric(pred > 0.5, target)
+    # the same 8-bit images as float: accepted, and the score of the float pair
+    assert metric(to_float(pred_u8), to_float(target_u8)) == pytest.approx(
+        metric(pred_u8 / 255.0, target_u8 / 255.0), abs=1e-6
+    )
+
+
+@pytest.mark.parametrize("metric", [psnr, ssim])
+def test_minus_one_to_one_images_are_refused(metric, pair):
+    pred, target = pair
+    signed_pred, signed_target = pred * 2.0 - 1.0, target * 2.0 - 1.0
+    lo, hi = signed_pred.min(), signed_pred.max()
+    with pytest.raises(InputError, match=rf"pred values must lie in \[0, 1\], got \[{lo:.6g}, {hi:.6g}\]") as err:
+        metric(signed_pred, signed_target)
+    assert "\n" not in str(err.value)
+    with pytest.raises(InputError, match=r"target values must lie in \[0, 1\], got \[-"):
+        metric(pred, signed_target)
+    with pytest.raises(InputError, match=r"target values must lie in \[0, 1\], got \[0, 255\]"):
+        metric(pred, np.linspace(0.0, 255.0, target.size).reshape(target.shape))
+
+
+def test_range_tolerance_and_data_range():
+    target = np.zeros((12, 12))
+    target[::2] = 1.0
+    pred = target * 255.0 / 255.0 + 1e-9  # rounding just outside [0, 1] passes
+    assert psnr(pred, target) > 100.0
+    with pytest.raises(InputError, match=r"pred values must lie in \[0, 1\], got \[0.001, 1.001\]"):
+        psnr(target + 1e-3, target)
+    # data_range sets the range: 8-bit values as float are fine at 255 and refused at 1
+    assert psnr(target * 255.0, target * 255.0 + 2.55 * (target < 1), data_range=255.0) == pytest.approx(
+        10.0 * math.log10(1.0 / (0.01**2 / 2)), abs=1e-9
+    )
+    with pytest.raises(InputError, match=r"\[0, 1\], got \[0, 255\]"):
+        ssim(target * 255.0, target * 255.0)

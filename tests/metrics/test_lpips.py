@@ -227,3 +227,22 @@ def test_real_weights_mask():
     d_left = lp.lpips_distance(damaged, img, mask=left)
     d_right = lp.lpips_distance(damaged, img, mask=right)
     assert d_left < d_right
+
+
+@pytest.mark.parametrize("metric", [lp.lpips_distance, lp.lpips_or_na])
+def test_uint8_and_signed_images_are_refused(metric, synthetic, tmp_path, monkeypatch):
+    """Refused before any weights are needed: with weights and without (lpips_or_na's n/a is only
+    for missing weights, never for a wrong image)."""
+    weights_dir, _ = synthetic
+    img = astronaut()
+    u8 = np.rint(img * 255.0).astype(np.uint8)
+    monkeypatch.setenv(lp.ENV_WEIGHTS_DIR, str(tmp_path / "empty"))
+    for where in (weights_dir, None):
+        with pytest.raises(InputError, match=r"pred must be a floating-point image in \[0, 1\], got dtype uint8"):
+            metric(u8, img, weights_dir=where)
+        with pytest.raises(InputError, match=r"target must be a floating-point image in \[0, 1\], got dtype uint8"):
+            metric(img, u8, weights_dir=where)
+        with pytest.raises(InputError, match=r"pred values must lie in \[0, 1\], got \[-") as err:
+            metric(img * 2.0 - 1.0, img * 2.0 - 1.0, weights_dir=where)
+        assert "\n" not in str(err.value)
+    assert metric(u8 / 255.0, u8 / 255.0, weights_dir=weights_dir) == 0.0

@@ -27,6 +27,7 @@ from nsim.geometry.transforms import make_se3
 from nsim.io.exr import read_depth_exr, read_exr, read_exr_attributes, read_points_exr
 from nsim.io.images import read_image
 from nsim.io.tum import Trajectory, write_tum
+from nsim.metrics.image import psnr
 from nsim.sensors.rig import load_rig
 from nsim.stages.capture import RobotLogConfig
 from nsim.stages.render import adapt_rig
@@ -131,8 +132,8 @@ def rendered_wrong(world):
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    err = np.mean((a.astype(np.float64) / 255.0 - b.astype(np.float64) / 255.0) ** 2)
-    return float(-10.0 * np.log10(err))
+    """PSNR (dB) of two images with 8-bit values (uint8, or float in [0, 255])."""
+    return psnr(np.asarray(a, np.float64) / 255.0, np.asarray(b, np.float64) / 255.0)
 
 
 def camera_scores(art, rec, name: str) -> tuple[float, float]:
