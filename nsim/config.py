@@ -246,15 +246,24 @@ def config_digest(cfg: Any) -> str:
 # --------------------------------------------------------------------------------------
 
 
-def configs_dir() -> Path:
-    """Directory holding the preset YAML files.
+#: Where a wheel carries its copy of the repository's ``configs/`` (setup.py's build step puts it there).
+PACKAGED_CONFIGS = Path(__file__).resolve().parent / "_configs"
+#: The repository's ``configs/``, the one source of the presets (a checkout or an editable install).
+REPO_CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
-    ``$NSIM_CONFIGS`` if set, else the repository's ``configs/`` next to the package.
+
+def configs_dir() -> Path:
+    """Directory holding the preset YAML files (and the rigs, scenarios, motions and schemas beside them).
+
+    ``$NSIM_CONFIGS`` if set; else the copy an installed wheel carries (``nsim/_configs/``); else the
+    repository's ``configs/`` next to the package (a checkout, an editable install).
     """
     env = os.environ.get("NSIM_CONFIGS")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[1] / "configs"
+    if PACKAGED_CONFIGS.is_dir():
+        return PACKAGED_CONFIGS
+    return REPO_CONFIGS
 
 
 def read_yaml(path: Path, what: str = "config") -> Any:
@@ -282,7 +291,11 @@ def parse_yaml(text: str, path: str | os.PathLike[str], error: type[Exception] =
 def preset_path(stage: str, preset: str) -> Path:
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", preset) or preset.startswith("."):
         raise ConfigError(f"--preset: invalid preset name {preset!r}")
-    base = configs_dir() / stage
+    root = configs_dir()
+    if not root.is_dir():
+        hint = "is $NSIM_CONFIGS right?" if os.environ.get("NSIM_CONFIGS") else "reinstall nsim, or set $NSIM_CONFIGS"
+        raise ConfigError(f"--preset: the presets folder {root} is missing ({hint})")
+    base = root / stage
     path = base / f"{preset}.yaml"
     if not path.is_file():
         names = sorted(p.stem for p in base.glob("*.yaml")) if base.is_dir() else []

@@ -37,8 +37,8 @@ def synth(click_ctx, preset, config_file, overrides, force, tag, room, camera, a
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None, help="YAML file over the preset.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override one config value (repeatable).")
 @click.argument("trajectory")
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=Path("configs/robots/spot.yaml"),
-              show_default=True, help="The robot's sensors (YAML or URDF rig).")
+@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="The robot's sensors (YAML or URDF rig); default: the presets' robots/spot.yaml.")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="The bag to write (a new directory; a *.bag file with storage=ros1); <out>.truth.json beside it.")
 @click.pass_context
@@ -46,9 +46,11 @@ def robot_log(click_ctx, preset, config_file, overrides, trajectory, rig_path, o
     """A realistic robot log of TRAJECTORY (a simulated run in a test room): the rig's sensors rendered by
     the room's oracle with real-world faults (noise, auto-exposure, JPEG, depth holes, LiDAR dropout,
     odometry drift, a camera clock offset, an odometry frame offset), written as a ROS bag."""
+    from nsim.config import configs_dir
     from nsim.stages import capture
 
     cfg = resolve_config(capture.RobotLogConfig, "robot_log", preset, config_file, overrides)
+    rig_path = rig_path if rig_path is not None else configs_dir() / "robots" / "spot.yaml"
     ctx = run_context(click_ctx)
     truth = capture.robot_log(trajectory, rig_path, out, cfg, ctx)
     click.echo(f"robot log: {out} ({len(truth['stamps_ns'])} ticks, odometry frame offset and clock offset in "

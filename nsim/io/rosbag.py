@@ -170,7 +170,7 @@ def stamp_ns(header) -> int:
 
 def _transform_msg(pose: np.ndarray, store=TYPESTORE):
     """geometry_msgs/Transform of a rigid ``(4, 4)`` (quaternion xyzw with w >= 0, as ROS writes it)."""
-    q = Rotation.from_matrix(pose[:3, :3]).as_quat()  # xyzw
+    q = Rotation.from_matrix(np.array(pose[:3, :3])).as_quat()  # xyzw (a copy: scipy 1.15.0 and older refuse read-only arrays)
     if q[3] < 0:
         q = -q
     x, y, z = (float(v) for v in pose[:3, 3])
