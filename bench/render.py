@@ -59,6 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nsim.config import configs_dir, from_dict, load_config, to_dict  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
+from nsim.metrics.image import psnr_from_mse  # noqa: E402
 from nsim.stages import capture, render, simulate, train_scene  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
@@ -227,7 +228,7 @@ def score_spot(ctx: RunContext, art_id: str, oracle, seen=None) -> dict:
                 ok = seen(pts)
                 err = ((pred.astype(np.float32) / 255.0 - np.clip(view.rgb.astype(np.float32), 0, 1)) ** 2)[valid]
                 row.setdefault("unseen_fraction", []).append(float(1.0 - ok.mean()))
-                row.setdefault("psnr_seen", []).append(float(-10 * np.log10(max(err[ok].mean(), 1e-12))))
+                row.setdefault("psnr_seen", []).append(psnr_from_mse(max(float(err[ok].mean()), 1e-12)))
     out = {name: {k: float(np.nanmean(v)) for k, v in row.items()} for name, row in table.items()}
     errs = np.concatenate(lidar_err) if lidar_err else np.zeros(0)
     lidar = {"median_range_error_m": float(np.median(errs)) if errs.size else float("nan"),
