@@ -61,9 +61,8 @@ from nsim.human.skeleton import Skeleton, pose_aabb
 from nsim.metrics.image import psnr, psnr_from_mse
 from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
-from nsim.train import checkpoint
-from nsim.train.checkpoint import CHECKPOINT_NAME
-from nsim.train.loop import ResumableTrainer, spread, step_seed, train_loop
+from nsim.train import loop
+from nsim.train.loop import ResumableTrainer, spread, step_seed
 
 log = logging.getLogger(__name__)
 
@@ -518,14 +517,8 @@ def mask_box(mask: np.ndarray, margin_px: int = 0) -> tuple[int, int, int, int] 
 
 # ====================================================================== the loop
 @dataclass
-class HumanTrainResult:
-    trainer: HumanTrainer
-    resumed_from: int | None
-    evaluation: dict[str, Any] | None = None
-
-    @property
-    def model(self) -> HumanModel:
-        return self.trainer.model
+class HumanTrainResult(loop.TrainResult):
+    """A human training (``nsim.train.loop.TrainResult``)."""
 
 
 def train_human(
@@ -545,14 +538,12 @@ def train_human(
     the module docstring). A checkpoint of this run (same config, data, seed, device and
     background model) in ``work_dir`` is resumed; one is written every
     ``output.checkpoint_every`` steps and at the end. ``stop_after``: return after that many
-    total steps without writing a checkpoint, as if killed (tests). The loop is ``nsim.train.loop.train_loop``.
+    total steps without writing a checkpoint, as if killed (tests). The loop is ``nsim.train.loop.resume_and_train``.
     """
-    work_dir = Path(work_dir)
-    work_dir.mkdir(parents=True, exist_ok=True)
-    ckpt = work_dir / CHECKPOINT_NAME
-    trainer, resumed = checkpoint.resume(lambda: HumanTrainer(data, cfg, device, seed, background_model), ckpt)
-    train_loop(trainer, cfg.optim.steps, cfg.output.log_every, cfg.output.checkpoint_every, ckpt, "training human",
-               progress, stop_after, on_log, log)
+    o = cfg.output
+    trainer, resumed = loop.resume_and_train(lambda: HumanTrainer(data, cfg, device, seed, background_model), work_dir,
+                                             cfg.optim.steps, o.log_every, o.checkpoint_every, "training human",
+                                             progress, stop_after, on_log, log)
     return HumanTrainResult(trainer, resumed)
 
 

@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -128,3 +130,32 @@ def train_loop(trainer: Trainer, steps: int, log_every: int, checkpoint_every: i
                 trainer.save_checkpoint(ckpt)
                 trainer.train_seconds += time.perf_counter() - t0
             bar.advance(1)
+
+
+@dataclass
+class TrainResult:
+    """A finished (or stopped) training: the trainer, the step it resumed from (None: fresh), and
+    what the export adds (``evaluation``)."""
+
+    trainer: Any
+    resumed_from: int | None
+    evaluation: dict[str, Any] | None = None
+
+    @property
+    def model(self):
+        return self.trainer.model
+
+
+def resume_and_train(make_trainer: Callable[[], Any], work_dir: str | os.PathLike, steps: int, log_every: int,
+                     checkpoint_every: int, label: str, progress: bool = False, stop_after: int | None = None,
+                     on_log: Callable[[Any, Any], None] | None = None,
+                     logger: logging.Logger | None = None) -> tuple[Any, int | None]:
+    """A trainer from ``make_trainer()``, resumed from ``work_dir/last.pt`` when that is this run's
+    (``nsim.train.checkpoint.resume``), trained by :func:`train_loop` with its checkpoints there.
+    Returns ``(trainer, step resumed from or None)``."""
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    ckpt = work_dir / checkpoint.CHECKPOINT_NAME
+    trainer, resumed = checkpoint.resume(make_trainer, ckpt)
+    train_loop(trainer, steps, log_every, checkpoint_every, ckpt, label, progress, stop_after, on_log, logger)
+    return trainer, resumed

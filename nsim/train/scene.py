@@ -60,9 +60,8 @@ from nsim.metrics.image import psnr, psnr_from_mse, ssim
 from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
-from nsim.train import checkpoint
-from nsim.train.checkpoint import CHECKPOINT_NAME
-from nsim.train.loop import ResumableTrainer, spread, step_seed, train_loop
+from nsim.train import loop
+from nsim.train.loop import ResumableTrainer, spread, step_seed
 from nsim.train.scene_data import (
     BOUNDS_MODES,
     POINT_FILES,
@@ -749,15 +748,10 @@ def image_mean_rgb(data: SceneData, train_ids) -> list[float]:
 
 # ====================================================================== the loop
 @dataclass
-class TrainResult:
-    trainer: SceneTrainer
-    resumed_from: int | None
-    evaluation: dict[str, Any] | None = None
-    post_train_seconds: dict[str, float] = field(default_factory=dict)  # export_scene's phases (not in any file)
+class TrainResult(loop.TrainResult):
+    """A scene training (``nsim.train.loop.TrainResult``) and the post-training phases' seconds."""
 
-    @property
-    def model(self) -> SceneModel:
-        return self.trainer.model
+    post_train_seconds: dict[str, float] = field(default_factory=dict)  # export_scene's phases (not in any file)
 
 
 
@@ -778,14 +772,12 @@ def train_scene(
     device), training continues from it; a checkpoint is written every ``output.checkpoint_every``
     steps and at the end. ``stop_after``: return after that many total steps *without* writing a
     checkpoint, as if the process had been killed then (tests). ``on_log`` is called every
-    ``output.log_every`` steps (after evaluation, if one is due). The loop is ``nsim.train.loop.train_loop``.
+    ``output.log_every`` steps (after evaluation, if one is due). The loop is ``nsim.train.loop.resume_and_train``.
     """
-    work_dir = Path(work_dir)
-    work_dir.mkdir(parents=True, exist_ok=True)
-    ckpt = work_dir / CHECKPOINT_NAME
-    trainer, resumed = checkpoint.resume(lambda: SceneTrainer(data, cfg, device, seed), ckpt)
-    train_loop(trainer, cfg.optim.steps, cfg.output.log_every, cfg.output.checkpoint_every, ckpt, "training scene",
-               progress, stop_after, on_log, log)
+    o = cfg.output
+    trainer, resumed = loop.resume_and_train(lambda: SceneTrainer(data, cfg, device, seed), work_dir, cfg.optim.steps,
+                                             o.log_every, o.checkpoint_every, "training scene", progress, stop_after,
+                                             on_log, log)
     return TrainResult(trainer, resumed)
 
 
