@@ -46,7 +46,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -58,11 +58,11 @@ from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.skeleton import Skeleton, pose_aabb
-from nsim.metrics.image import psnr, psnr_from_mse
+from nsim.metrics.image import psnr
 from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
 from nsim.train import loop
-from nsim.train.loop import ResumableTrainer, spread, step_seed
+from nsim.train.loop import ResumableTrainer, StepStats, spread, step_seed
 
 log = logging.getLogger(__name__)
 
@@ -249,15 +249,6 @@ def _module_digest(module: torch.nn.Module | None) -> str:
 
 
 # ====================================================================== the trainer
-@dataclass
-class StepStats:
-    step: int
-    loss: float
-    psnr: float
-    seconds: float
-    extra: dict[str, float] = field(default_factory=dict)
-
-
 class HumanTrainer(ResumableTrainer):
     """One training run's state: model, optimiser, step; ``train_step`` advances it by one."""
 
@@ -397,9 +388,7 @@ class HumanTrainer(ResumableTrainer):
         t0 = time.perf_counter()
         step = self.step
         cfg = self.cfg
-        scale = self.lr_scale(step)
-        for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
-            group["lr"] = base * scale
+        self._set_learning_rates()
         self.model.train()
         frames, v, u, g = self.batch(step)
         out = self.render_rays(frames, v, u, generator=g)
@@ -416,11 +405,7 @@ class HumanTrainer(ResumableTrainer):
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
-        self.step += 1
-        dt = time.perf_counter() - t0
-        self.train_seconds += dt
-        mse_f = float(mse.detach())
-        return StepStats(self.step, float(loss.detach()), psnr_from_mse(max(mse_f, 1e-12)), dt, extra)
+        return self._finish_step(t0, loss, mse, extra)
 
     # ------------------------------------------------------------------ checkpoints
     def meta(self) -> dict[str, Any]:

@@ -20,11 +20,12 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 from nsim.errors import InputError
+from nsim.metrics.image import psnr_from_mse
 from nsim.train import checkpoint
 
 
@@ -42,9 +43,15 @@ def spread(items: list[int], n: int) -> list[int]:
     return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
 
 
-class StepResult(Protocol):
+@dataclass
+class StepStats:
+    """One training step: the step count after it, its loss, the batch's PSNR, seconds, and extras."""
+
+    step: int
     loss: float
     psnr: float
+    seconds: float
+    extra: dict[str, float] = field(default_factory=dict)
 
 
 class Trainer(Protocol):
@@ -52,9 +59,9 @@ class Trainer(Protocol):
     train_seconds: float
     history: list[dict[str, Any]]
 
-    def train_step(self) -> StepResult: ...
+    def train_step(self) -> StepStats: ...
 
-    def history_row(self, stats: StepResult) -> dict[str, Any]: ...
+    def history_row(self, stats: StepStats) -> dict[str, Any]: ...
 
     def save_checkpoint(self, path: Path) -> None: ...
 
@@ -96,6 +103,19 @@ class ResumableTrainer:
     def save_checkpoint(self, path: Path) -> None:
         """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
         checkpoint.save_checkpoint(self.state_dict(), path)
+
+    def _set_learning_rates(self) -> None:
+        """Each optimiser group's rate: its base rate (``base_lr``) times ``lr_scale(step)``."""
+        scale = self.lr_scale(self.step)
+        for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
+            group["lr"] = base * scale
+
+    def _finish_step(self, t0: float, loss, mse, extra: dict[str, float]) -> StepStats:
+        """Count the step begun at ``t0`` (``time.perf_counter``) and its seconds; its stats (PSNR from ``mse``)."""
+        self.step += 1
+        dt = time.perf_counter() - t0
+        self.train_seconds += dt
+        return StepStats(self.step, float(loss.detach()), psnr_from_mse(max(float(mse.detach()), 1e-12)), dt, extra)
 
     def load_checkpoint(self, path: Path) -> None:
         """Continue from the checkpoint at ``path``; read weights-only, so no code in it runs.

@@ -56,12 +56,12 @@ from torch import Tensor
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
-from nsim.metrics.image import psnr, psnr_from_mse, ssim
+from nsim.metrics.image import psnr, ssim
 from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
 from nsim.train import loop
-from nsim.train.loop import ResumableTrainer, spread, step_seed
+from nsim.train.loop import ResumableTrainer, StepStats, spread, step_seed
 from nsim.train.scene_data import (
     BOUNDS_MODES,
     POINT_FILES,
@@ -247,15 +247,6 @@ def _step_seed(seed: int, step: int, purpose: str = "batch") -> int:
 
 
 # ====================================================================== the trainer
-@dataclass
-class StepStats:
-    step: int
-    loss: float
-    psnr: float
-    seconds: float
-    extra: dict[str, float] = field(default_factory=dict)
-
-
 def _sum_in_order(tensors: list[Tensor]) -> Tensor:
     """``((t0 + t1) + t2) + ...`` into a fresh tensor (the first is not modified)."""
     if len(tensors) == 1:
@@ -467,9 +458,7 @@ class SceneTrainer(ResumableTrainer):
         t0 = time.perf_counter()
         step = self.step
         cfg = self.cfg
-        scale = self.lr_scale(step)
-        for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
-            group["lr"] = base * scale
+        self._set_learning_rates()
         self.model.train()
         extra = {}
         grid = cfg.sampler.kind == "grid"
@@ -523,12 +512,7 @@ class SceneTrainer(ResumableTrainer):
         self.scaler.update()
         if len(parts) > 1 and self.cfg.optim.num_threads > 0:
             torch.set_num_threads(self.cfg.optim.num_threads)
-        self.step += 1
-        dt = time.perf_counter() - t0
-        self.train_seconds += dt
-        mse_f = float(mse.detach())
-        return StepStats(step=self.step, loss=float(loss.detach()), psnr=psnr_from_mse(max(mse_f, 1e-12)), seconds=dt,
-                         extra=extra)
+        return self._finish_step(t0, loss, mse, extra)
 
     def _parts(self, n: int) -> list[slice]:
         """The batch's parts for ``optim.batch_threads`` (CPU only; one part otherwise)."""
