@@ -60,6 +60,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from nsim.config import configs_dir, from_dict, load_config, to_dict  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.metrics.image import psnr_from_mse  # noqa: E402
+from nsim.rendering.people import HumanSet  # noqa: E402
+from nsim.rendering.render_plan import adapt_rig, plan_frames  # noqa: E402
 from nsim.stages import capture, render, simulate, train_scene  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
@@ -296,8 +298,8 @@ def visible_people(ctx: RunContext, traj: str, human: str, frames: list[dict], r
     import torch
 
     store = ctx.store
-    hs = render.HumanSet.load([str(store.get(human).path)], str(store.get(traj).file("trajectory.npz")),
-                              torch.device("cpu"))
+    hs = HumanSet.load([str(store.get(human).path)], str(store.get(traj).file("trajectory.npz")),
+                       torch.device("cpu"))
     seen = {}
     for f in frames:
         body = np.asarray(f["body_to_world"], dtype=np.float64)
@@ -382,7 +384,7 @@ class _Meter:
         from nsim.human.nerf import HumanModel
         from nsim.rendering import renderer
 
-        self.targets = [(render.HumanSet, "visible"), (render.HumanSet, "composite"), (HumanModel, "render_samples"),
+        self.targets = [(HumanSet, "visible"), (HumanSet, "composite"), (HumanModel, "render_samples"),
                         (renderer, "render_rays")]
         self.real = {}
         self.reset()
@@ -443,8 +445,8 @@ def culling_bench(ctx: RunContext, traj: str, scene_id: str, human: str, args) -
     # (a) out of view: behind the robot, Spot's front cameras
     probe = cfg(True, FRONT_CAMERAS, args.culling_scale)
     inputs = render.resolve_inputs(render.Inputs(trajectory=behind, scene=scene_id, rig=SPOT), ctx)
-    frames = render.plan_frames(inputs, probe, ctx)
-    rig_a = render.adapt_rig(Rig.load(SPOT), probe)
+    frames = plan_frames(inputs, probe, ctx)
+    rig_a = adapt_rig(Rig.load(SPOT), probe)
     seen = visible_people(ctx, behind, human, frames, rig_a)
     res["people"] = int(np.load(ctx.store.get(behind).file("trajectory.npz"))["position_m"].shape[1])
     if any(seen.values()):

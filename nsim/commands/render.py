@@ -70,5 +70,7 @@ def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, p
         click.echo(f"resumed: {out.shards_reused} shard(s) were already rendered", err=True)
     report_artifact(ctx, out.render, out.cache_hit, tag)
     if rosbag_path:
-        bag = render.export_rosbag(ctx.store.get(out.render).path, Path(rosbag_path))
+        from nsim.rendering.render_output import export_rosbag
+
+        bag = export_rosbag(ctx.store.get(out.render).path, Path(rosbag_path))
         click.echo(f"ROS 2 bag: {bag}", err=True)

@@ -135,7 +135,7 @@ class OracleTruth(GroundTruth):
         if not r.humans:
             return None
         from nsim.io.npz import read_npz
-        from nsim.stages.render import HumanSet
+        from nsim.rendering.people import HumanSet
         from nsim.synth.actor import Actor
         from nsim.synth.oracle import PlacedActor
 

@@ -354,8 +354,8 @@ def robot_log(trajectory: str, rig_path: Path, out: Path, cfg: RobotLogConfig, c
     from nsim.errors import InputError
     from nsim.io.rosbag import check_bag_destination
     from nsim.io.tum import read_tum
+    from nsim.rendering.render_plan import adapt_rig
     from nsim.sensors.rig import Rig
-    from nsim.stages.render import adapt_rig
     from nsim.synth.robot_log import write_robot_log
     from nsim.synth.room import make_room
 

@@ -17,9 +17,9 @@ from nsim.crowd.scenario import yaw_poses_se3
 from nsim.io.exr import read_exr
 from nsim.io.robot_log import RobotLog
 from nsim.io.tum import read_tum
+from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import load_rig
 from nsim.stages.capture import RobotLogConfig
-from nsim.stages.render import adapt_rig
 from nsim.synth.robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store

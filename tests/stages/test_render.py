@@ -169,26 +169,28 @@ def test_poses_mode_renders_the_frames_cameras(world):
 
 
 def test_failed_shard_resumes_and_matches_a_clean_run(world, tmp_path, monkeypatch):
+    from nsim.config import to_dict
     from nsim.rendering.engine import EngineConfig
+    from nsim.rendering.shard import ShardRenderer
     from nsim.stages import render
 
     cfg = from_dict(render.Config, {"tick_stride": 7, "max_frames": 4, "shard_frames": 2, "image_scale": 0.05,
                                     "lidar_azimuth_scale": 0.02, "march": {"step_m": 0.05}, "video": False})
     inputs = render.Inputs(trajectory="trajectory/in-scene", rig=RGBD)
     ctx = RunContext(store=world, device_spec="cpu", seed=0, progress=False)
-    real = render.ShardRenderer.render_shard
+    real = ShardRenderer.render_shard
 
     def flaky(self, shard, out_dir):
         if shard == 1:
             raise RuntimeError("worker lost")
         return real(self, shard, out_dir)
 
-    monkeypatch.setattr(render.ShardRenderer, "render_shard", flaky)
+    monkeypatch.setattr(ShardRenderer, "render_shard", flaky)
     with pytest.raises(Exception, match="worker lost"):
         render.run(inputs, cfg, ctx, engine=EngineConfig())
-    assert not any(a.kind == "render" and a.manifest["config"] == json.loads(json.dumps(render.to_dict(cfg)))
+    assert not any(a.kind == "render" and a.manifest["config"] == json.loads(json.dumps(to_dict(cfg)))
                    for a in world.artifacts())
-    monkeypatch.setattr(render.ShardRenderer, "render_shard", real)
+    monkeypatch.setattr(ShardRenderer, "render_shard", real)
     out = render.run(inputs, cfg, ctx, engine=EngineConfig())
     assert out.shards_reused == 1 and out.shards_rendered == 1
     ctx = dataclasses.replace(ctx, force=True)
@@ -229,7 +231,7 @@ def test_bad_inputs_exit_2(world, tmp_path, capsys):
 def test_rosbag_export_reads_back(spot_render, tmp_path):
     from rosbags.rosbag2 import Reader
 
-    from nsim.stages.render import export_rosbag
+    from nsim.rendering.render_output import export_rosbag
 
     bag = export_rosbag(spot_render.path, tmp_path / "bag")
     with Reader(bag) as reader:

@@ -28,9 +28,9 @@ from nsim.io.exr import read_depth_exr, read_exr, read_exr_attributes, read_poin
 from nsim.io.images import read_image
 from nsim.io.tum import Trajectory, write_tum
 from nsim.metrics.image import psnr
+from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import load_rig
 from nsim.stages.capture import RobotLogConfig
-from nsim.stages.render import adapt_rig
 from nsim.synth.robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store
@@ -397,7 +397,7 @@ def people(world, tmp_path_factory):
 def _truth_masks(store: Store, truth: dict) -> list[np.ndarray]:
     """Per recorded frame, the oracle's person mask: the actor posed at the frame's tick (trajectory mode's
     ``HumanSet.joint_transforms``), seen by the rig's front-left camera at the log's true body pose."""
-    from nsim.stages.render import HumanSet
+    from nsim.rendering.people import HumanSet
     from nsim.synth.actor import Actor
     from nsim.synth.oracle import PlacedActor, RoomOracle
 
@@ -524,7 +524,7 @@ def test_core_people_clock_and_states():
 def test_people_between_ticks_pose_like_the_ticks(people):
     """``HumanSet.joint_transforms_at`` on a tick's time is ``joint_transforms`` of that tick, bit for bit; half
     way between two ticks the root lies half way between theirs."""
-    from nsim.stages.render import HumanSet
+    from nsim.rendering.people import HumanSet
 
     store, _, _ = people
     arrays = dict(np.load(store.get(store.resolve("trajectory/crossing")).file("trajectory.npz"), allow_pickle=False))

@@ -15,9 +15,9 @@ from nsim.errors import ConfigError, InputError
 from nsim.io.images import to_uint8
 from nsim.io.robot_log import RobotLog
 from nsim.io.rosbag import stamp_ns
+from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import Rig, _linear_to_srgb, _srgb_to_linear, load_rig
 from nsim.stages.capture import RobotLogConfig
-from nsim.stages.render import adapt_rig
 from nsim.synth.oracle import RoomOracle
 from nsim.synth.robot_log import (
     CAMERA_TAG,

@@ -1,0 +1,191 @@
+"""The people of a simulated run in a render: posed from the trajectory, culled, composited with the scene.
+
+``HumanSet`` holds the run's people (a ``trajectory`` of ``nsim simulate``: per tick and person
+``position_m (T, P, 2)``, ``heading_rad (T, P)``, ``gait_phase (T, P)``, per person ``height_m (P,)``
+and optionally ``motion (P,)``) and the human checkpoints that draw them (person k uses checkpoint
+k mod M). Per frame:
+
+1. ``joint_transforms`` / ``joint_transforms_at``: each person still in the run posed by its gait
+   loop (``nsim.human.motion.LocomotionLoop``) and skeleton, at a tick or between ticks;
+2. ``visible``: the paper's Algorithm 1, corrected (``nsim.rendering.culling``): the people whose
+   posed box the sensor's rays can see, with the rays to cast their samples on;
+3. ``composite``: the scene's samples and every visible person's merged in depth order, one volume
+   rendering over both; the instance id of a ray is the person holding more than half its weight.
+
+Used by ``nsim.rendering.shard`` (``nsim render``) and, for the ground truth of the same poses,
+``nsim.evaluation.oracle``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.errors import InputError
+
+
+class HumanSet:
+    """The trajectory's people, each drawn by a human checkpoint (person k uses checkpoint k mod M)."""
+
+    def __init__(self, models: list, arrays: dict[str, np.ndarray], device) -> None:
+        self.models = models
+        self.arrays = arrays
+        self.device = device
+        self._loops: dict[tuple[str, float], Any] = {}
+
+    @classmethod
+    def load(cls, human_dirs: list[str], trajectory_file: str | None, device) -> HumanSet:
+        from nsim.human.nerf import load_human_model
+
+        if trajectory_file is None:
+            raise InputError("render: human checkpoints need a trajectory (people come from nsim simulate)")
+        from nsim.io.npz import read_npz
+
+        arrays = read_npz(Path(trajectory_file))
+        return cls([load_human_model(d, device=device).eval() for d in human_dirs], arrays, device)
+
+    def _loop(self, motion: str, height: float):
+        from nsim.human.gait import DEFAULT_CLIPS, default_clip
+        from nsim.human.motion import LocomotionLoop
+
+        key = (motion, round(height, 3))
+        if key not in self._loops:
+            name = motion if motion in DEFAULT_CLIPS else "walk"
+            self._loops[key] = LocomotionLoop.from_clip(default_clip(name, height))
+        return self._loops[key]
+
+    def joint_transforms(self, tick: int) -> list[tuple[int, np.ndarray]]:
+        """``[(person k, joint_transforms (J, 4, 4))]`` at a tick, for people still in the run."""
+        a = self.arrays
+        return self._posed(a["position_m"][tick], a["heading_rad"][tick], a["gait_phase"][tick])
+
+    def joint_transforms_at(self, time_s: float) -> list[tuple[int, np.ndarray]]:
+        """``[(person k, joint_transforms (J, 4, 4))]`` at simulation time ``time_s``, between ticks too
+        (``nsim.rendering.recording.people_states_at``; on a tick: ``joint_transforms(tick)``); nobody
+        outside the run's span."""
+        from nsim.rendering.recording import people_states_at
+
+        a = self.arrays
+        present, pos, head, phase = people_states_at(a["time_s"], a["position_m"], a["heading_rad"], a["gait_phase"],
+                                                     time_s)
+        return self._posed(pos, head, phase)
+
+    def _posed(self, position_m: np.ndarray, heading_rad: np.ndarray, gait_phase: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """Every person with a finite ``position_m (P, 2)`` posed by its gait loop at ``heading_rad (P,)`` and
+        ``gait_phase (P,)``: ``[(person k, joint_transforms (J, 4, 4))]``."""
+        from nsim.human.skeleton import forward_kinematics
+
+        a = self.arrays
+        out = []
+        for k in range(len(position_m)):
+            pos = position_m[k]
+            if not np.isfinite(pos).all():
+                continue
+            height = float(a["height_m"][k])
+            motion = str(a["motion"][k]) if "motion" in a else "walk"
+            loop = self._loop(motion, height)
+            root, quats = loop.pose_at(np.array([gait_phase[k]]), pos[None], np.array([heading_rad[k]]))
+            T = forward_kinematics(loop.skeleton, quats[0], root[0])
+            out.append((k, T))
+        return out
+
+    def visible(self, posed: list[tuple[int, np.ndarray]], origins, dirs, camera, cam_to_world, culling: bool,
+                t_min: float = 0.0, t_max: float = math.inf, valid=None) -> list[dict]:
+        """Of the ``posed`` people (``joint_transforms``), those whose posed box the rays can see, with the
+        ray mask to cast their samples on.
+
+        With ``culling`` a person is dropped when the box's image rectangle misses a camera's frame
+        (the cheap test, first), then when no ray meets the box within ``[t_min, t_max]`` m (the
+        sensor's range) among the ``valid (N,)`` rays; the mask keeps the rays that meet it."""
+        import torch
+
+        from nsim.rendering.culling import OrientedBox, camera_box_bounds, lidar_ray_box_mask
+
+        people = []
+        o = d = None
+        for k, T in posed:
+            model = self.models[k % len(self.models)]
+            with torch.no_grad():
+                lo, hi = model.posed_box(torch.as_tensor(T, dtype=torch.float32)).reshape(2, 3).cpu().numpy()
+            box = OrientedBox.from_min_max(lo.astype(np.float64), hi.astype(np.float64), np.eye(4))
+            inside = None
+            if culling and camera is not None and cam_to_world is not None:
+                bounds = camera_box_bounds(camera, np.linalg.inv(cam_to_world), box)
+                if bounds is None:
+                    continue
+                u0, v0, u1, v1 = bounds
+                h, w = camera.height, camera.width
+                uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+                inside = ((uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)).reshape(-1)
+            if o is None:
+                o = origins.cpu().numpy().astype(np.float64)
+                d = dirs.cpu().numpy().astype(np.float64)
+            mask = lidar_ray_box_mask(o, d, box, t_min, t_max)  # exact ray-box test within the sensor's range
+            if valid is not None:
+                mask &= np.asarray(valid, dtype=bool)
+            if inside is not None:
+                mask &= inside
+            if culling and not mask.any():
+                continue
+            people.append({"k": k, "T": T, "model": model, "mask": torch.as_tensor(mask if culling else np.ones_like(mask))})
+        return people
+
+    def composite(self, scene_model, grid, rays, people: list[dict], cfg):
+        """Scene samples + every person's samples on its rays, merged in depth order; one volume
+        rendering over both. Returns (RenderOutput, instance ids (N,) uint16).
+
+        cfg: the render config (``nsim.stages.render.Config``): its ``method``, ``march``,
+        ``chunk_rays`` (the scene's rendering) and ``culling`` (the people's box test)."""
+        import torch
+
+        from nsim.rendering.model import RaySamples, composite
+        from nsim.rendering.renderer import render_rays
+
+        n = len(rays)
+        scene_out = render_rays(scene_model, rays, cfg.method, grid, cfg.march, cfg.chunk_rays, return_samples=True)
+        any_mask = torch.zeros(n, dtype=torch.bool)
+        for p in people:
+            any_mask |= p["mask"]
+        idx = torch.nonzero(any_mask, as_tuple=True)[0]
+        out = scene_out
+        instance = np.zeros(n, dtype=np.uint16)
+        if len(idx):
+            sub = rays[idx]
+            parts = [RaySamples(*(getattr(scene_out.samples, f)[idx] for f in ("t_starts", "t_ends", "sigma", "rgb")))]
+            owners = [torch.zeros_like(parts[0].sigma, dtype=torch.long)]
+            live = torch.zeros(len(idx), dtype=torch.bool)  # rays where some person has a sample of non-zero length
+            for p in people:
+                m = p["mask"][idx]
+                with torch.no_grad():  # the model's parameters require grad; rendering needs none
+                    hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
+                                                   sub.near, sub.far, box_test=cfg.culling)
+                sig = torch.where(m[:, None], hs.sigma, 0.0)
+                live |= m & (hs.t_ends > hs.t_starts).any(-1)
+                parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
+                owners.append(torch.full_like(sig, p["k"] + 1, dtype=torch.long))
+            # a ray that no person's samples reach keeps the scene's own rendering, bit for bit (re-compositing
+            # the same samples after a merge can round differently): culling on or off, the same image
+            parts = [RaySamples(*(getattr(q, f)[live] for f in ("t_starts", "t_ends", "sigma", "rgb"))) for q in parts]
+            owners = [o[live] for o in owners]
+            idx = idx[live]
+        if len(idx):
+            merged = RaySamples(*(torch.cat([getattr(q, f) for q in parts], dim=1)
+                                  for f in ("t_starts", "t_ends", "sigma", "rgb")))
+            comp = composite(merged, scene_out.background[idx])  # the scene's per-ray background
+            owner = torch.cat(owners, dim=1)
+            order = torch.argsort(merged.t_starts, dim=-1, stable=True)
+            owner = torch.gather(owner, -1, order)
+            # instance: the person holding the most weight on the ray, if they hold more than half
+            per = torch.zeros(len(idx), len(people) + 1)
+            for j, p in enumerate(people):
+                per[:, j + 1] = (comp.weights * (owner == p["k"] + 1)).sum(-1)
+            best = per.argmax(-1)
+            strong = per.max(-1).values > 0.5
+            ids = torch.tensor([0] + [p["k"] + 1 for p in people])[best]
+            instance[idx.numpy()] = torch.where(strong, ids, 0).numpy().astype(np.uint16)
+            for f in ("rgb", "depth", "depth_median", "accumulation"):
+                getattr(out, f)[idx] = getattr(comp, f)
+        return out, instance
