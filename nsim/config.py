@@ -16,6 +16,13 @@ Constraints live in field metadata, written with :func:`param`::
         steps: int = param(1000, ge=1)
         sampler: str = param("proposal", choices=("proposal", "uniform"))
 
+A field that mirrors another config's (a stage's ``max_features`` is SfM's) takes its
+constraints and help from that one definition with :func:`param_from`; a dataclass used directly
+from Python checks its own fields with :func:`check_params`.
+
+A preset file may name another preset of the same stage with ``inherit: NAME``: its keys then
+override that preset's (``configs/train_scene/default.yaml`` is ``inherit: cpu``).
+
 Supported field types: ``bool``, ``int``, ``float``, ``str``, ``tuple[T, ...]``,
 ``tuple[T1, T2]``, ``X | None`` and nested config dataclasses (two levels at most, by
 convention). Ints are accepted where a float is expected; YAML strings such as ``1e-3``
@@ -60,6 +67,45 @@ def param(
     if isinstance(default, (list, dict, set)):
         raise TypeError("mutable defaults are not allowed in frozen configs; use a tuple")
     return dataclasses.field(default=default, metadata=meta)
+
+
+def param_from(cls: type, name: str, default: Any = dataclasses.MISSING, *, help: str | None = None) -> Any:
+    """A field with the constraints (and help) of field ``name`` of config dataclass ``cls``.
+
+    For a setting one config passes on to another (a stage's ``max_features`` to
+    ``nsim.sfm.options.SfmOptions``): the bounds and choices are written once, on ``cls``; ``default``
+    (else ``cls``'s) and ``help`` (else ``cls``'s) may be the user's own.
+    """
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if name not in fields:
+        raise TypeError(f"{cls.__name__} has no field {name!r}")
+    src = fields[name]
+    meta = dict(src.metadata)
+    if help is not None:
+        meta["help"] = help
+    if default is dataclasses.MISSING:
+        default = src.default
+    if default is dataclasses.MISSING:
+        raise TypeError(f"{cls.__name__}.{name} has no default: give one")
+    return param(default, gt=meta.get("gt"), ge=meta.get("ge"), lt=meta.get("lt"), le=meta.get("le"),
+                 choices=meta.get("choices"), help=meta.get("help", ""))
+
+
+def check_params(obj: Any) -> None:
+    """Check a config dataclass built in Python (not loaded) against its fields' :func:`param` constraints.
+
+    Scalars only (``None`` passes); raises ``ValueError`` with the loader's message, e.g.
+    ``max_features: expected int >= 64, got 8``. Call it from ``__post_init__``.
+    """
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            continue
+        tname = "str" if isinstance(value, str) else ("int" if isinstance(value, int) else "float")
+        try:
+            _check_range(f.name, value, f.metadata, tname)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------------------
@@ -303,6 +349,49 @@ def preset_path(stage: str, preset: str) -> Path:
     return path
 
 
+#: The key by which a preset file names the preset of the same stage it builds on.
+INHERIT_KEY = "inherit"
+
+
+def read_preset(stage: str, preset: str) -> dict[str, Any]:
+    """The data of preset ``preset`` of ``stage``, with any ``inherit: NAME`` chain resolved.
+
+    A preset ``inherit``-ing another is that one's data with its own keys deep-merged over it
+    (its sections merge key by key). Chains are followed; a cycle, a missing parent or a
+    non-string name is a one-line :class:`ConfigError` naming the file.
+    """
+    chain: list[str] = []
+    layers: list[dict[str, Any]] = []
+    name = preset
+    while True:
+        if name in chain:
+            raise ConfigError(f"{preset_path(stage, chain[0])}: {INHERIT_KEY}: presets inherit in a cycle "
+                              f"({' -> '.join([*chain, name])})")
+        path = preset_path(stage, name)
+        data = read_yaml(path)
+        if data is None:
+            data = {}
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"{path}: expected a mapping at the top level, got {_describe(data)}")
+        chain.append(name)
+        data = dict(data)
+        parent = data.pop(INHERIT_KEY, None)
+        layers.append(data)
+        if parent is None:
+            break
+        if not isinstance(parent, str):
+            raise ConfigError(f"{path}: {INHERIT_KEY}: expected the name of a {stage} preset, got {_describe(parent)}")
+        try:
+            preset_path(stage, parent)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {INHERIT_KEY}: {str(exc).removeprefix('--preset: ')}") from None
+        name = parent
+    out: dict[str, Any] = {}
+    for layer in reversed(layers):
+        out = _deep_merge(out, layer)
+    return out
+
+
 def _deep_merge(base: dict[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for k, v in over.items():
@@ -365,8 +454,7 @@ def load_config(
     if preset is not None:
         if stage is None:
             raise ValueError("a preset needs a stage name")
-        p = preset_path(stage, preset)
-        layers.append((p, read_yaml(p)))
+        layers.append((preset_path(stage, preset), read_preset(stage, preset)))
     if config_file is not None:
         p = Path(config_file)
         layers.append((p, read_yaml(p)))

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from nsim.config import param
+from nsim.config import param, param_from
+from nsim.sfm.options import SfmOptions
 
 TABLES = ("scenes", "spot-rgb", "spot-depth", "lidar", "slam", "detection")
 
@@ -14,12 +15,12 @@ class SlamConfig:
     camera: str = param("left", help="the rig camera whose frames SfM runs on")
     stride: int = param(1, ge=1, help="use every k-th rendered frame")
     max_frames: int | None = param(None, ge=3, help="use at most this many frames")
-    camera_model: str = param("OPENCV_FISHEYE", choices=("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE"),
-                              help="COLMAP model estimated for the camera")
-    matcher: str = param("sequential", choices=("sequential", "exhaustive"))
-    overlap: int = param(10, ge=1, help="sequential matching: each frame against this many next ones")
-    max_features: int = param(4096, ge=64)
-    min_registered_fraction: float = param(0.5, gt=0.0, le=1.0, help="fewer registered frames: SfM failed (n/a)")
+    camera_model: str = param_from(SfmOptions, "camera_model", "OPENCV_FISHEYE")
+    matcher: str = param_from(SfmOptions, "matcher")
+    overlap: int = param_from(SfmOptions, "overlap")
+    max_features: int = param_from(SfmOptions, "max_features", 4096)
+    min_registered_fraction: float = param_from(SfmOptions, "min_registered_fraction",
+                                                help="fewer registered frames: SfM failed (n/a)")
     alignment: str = param("sim3", choices=("se3", "sim3"), help="ATE alignment (monocular SfM has no scale: sim3)")
     max_dt_s: float = param(0.01, gt=0.0, help="largest timestamp gap when associating poses")
 

@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation
 from nsim.errors import InputError
 from nsim.human.motion import MotionClip
 from nsim.human.skeleton import Skeleton, nsim_skeleton, quats_from_matrices
+from nsim.io import atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -422,10 +423,5 @@ def format_bvh(clip: MotionClip, unit: str = "cm", euler_order: str = "ZXY", axe
 
 def write_bvh(path: str | os.PathLike[str], clip: MotionClip, unit: str = "cm", euler_order: str = "ZXY",
               axes: str = "y_up") -> Path:
-    """Write ``clip`` as BVH (``format_bvh``) to ``path`` (via a temporary file and rename). Returns the path."""
-    path = Path(path)
-    text = format_bvh(clip, unit=unit, euler_order=euler_order, axes=axes)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    """Write ``clip`` as BVH (``format_bvh``) to ``path``, atomically. Returns the path."""
+    return atomic_write_text(path, format_bvh(clip, unit=unit, euler_order=euler_order, axes=axes))

@@ -63,6 +63,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from nsim.errors import ConfigError, NsimError
+from nsim.io import atomic_write_text
 from nsim.progress import progress_bar
 
 logger = logging.getLogger(__name__)
@@ -529,15 +530,8 @@ def _fsync_path(path: Path) -> None:
 
 
 def _write_atomic(path: Path, text: str, tmp_name: str) -> None:
-    tmp = path.with_name(f"{tmp_name}{SUMMARY_SUFFIX}")
-    try:
-        with open(tmp, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """``text`` to ``path`` through a temp file named after the shard's temp dir (``_temps_of`` finds it)."""
+    atomic_write_text(path, text, tmp=path.with_name(f"{tmp_name}{SUMMARY_SUFFIX}"))
 
 
 def _fsync_tree(root: Path) -> None:

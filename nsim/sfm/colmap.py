@@ -1,6 +1,7 @@
 """Structure from motion with pycolmap: SIFT, matching, incremental mapping, global BA.
 
-``run_sfm(image_dir, work_dir, options)`` reconstructs the images of a folder and returns an
+``run_sfm(image_dir, work_dir, options)`` (:class:`SfmOptions`, defined in ``nsim.sfm.options``)
+reconstructs the images of a folder and returns an
 :class:`SfmResult`: the pycolmap reconstruction (the largest model when COLMAP makes several),
 per-image ``cam_to_world`` (OpenCV axes, the reconstruction's arbitrary world frame and scale)
 and intrinsics as :class:`nsim.geometry.cameras.Camera` (OpenCV pixel centres: COLMAP's
@@ -79,21 +80,19 @@ from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.geometry.conventions import principal_point_from_colmap, principal_point_to_colmap
 from nsim.geometry.transforms import invert_se3
+from nsim.sfm.options import (  # noqa: F401  (re-exported: SfmOptions and its constants live there)
+    CAMERA_MODELS,
+    DEFAULT_HFOV_GUESSES_DEG,
+    DEVICES,
+    FISHEYE_MODELS,
+    MATCHERS,
+    PP_REFINE_CHOICES,
+    SfmOptions,
+)
 
 log = logging.getLogger(__name__)
 
-CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
-MATCHERS = ("sequential", "exhaustive")
-DEVICES = ("cpu", "cuda")
 PHASES = ("features", "matching", "far_pair_check", "mapping", "bundle_adjustment")
-#: Horizontal fields of view tried in turn for the initial focal length when intrinsics are unknown.
-DEFAULT_HFOV_GUESSES_DEG = {
-    "SIMPLE_RADIAL": (65.0, 45.0, 90.0),
-    "OPENCV": (65.0, 45.0, 90.0),
-    "PINHOLE": (65.0, 45.0, 90.0),
-    "OPENCV_FISHEYE": (180.0, 140.0, 220.0),
-}
-FISHEYE_MODELS = ("OPENCV_FISHEYE",)
 #: RANSAC trial cap of two-view verification (COLMAP's 10000 made loop-closure candidates, which
 #: often have low inlier ratios, take 4x longer to verify than all sequential pairs together).
 VERIFY_MAX_RANSAC_TRIALS = 2000
@@ -118,80 +117,9 @@ PP_AUTO_MIN_IMAGES = 20
 PP_AUTO_MIN_GAIN = 0.005
 #: ... and only when it lands within this fraction of max(width, height) of the image centre.
 PP_AUTO_MAX_SHIFT = 0.1
-PP_REFINE_CHOICES = ("auto", "on", "off")
 
 #: (phase, done, total) progress callback.
 ProgressFn = Callable[[str, int, int], None]
-
-
-@dataclass(frozen=True)
-class SfmOptions:
-    """How to run SfM.
-
-    camera_model: COLMAP model estimated when no camera is known (SIMPLE_RADIAL comes back as
-        an nsim OPENCV camera with only k1). shared_intrinsics: one camera for all images.
-    matcher: "sequential" for ordered video frames (each image against its ``overlap`` next
-        ones and quadratically further ones, plus retrieval-based loop pairs with
-        ``loop_detection``; also enables the pose-jump check), "exhaustive" for small or
-        unordered sets. max_features: SIFT features per image.
-    device: "cpu" or "cuda" (SIFT on the GPU when pycolmap has CUDA, else a warning and CPU).
-    num_threads: extraction and matching threads (-1: all cores). seed / deterministic: see
-        the module docstring. min_registered_fraction: fewer registered images is an
-        InputError. retry_below_fraction: map again with the next focal guess below this.
-    refine_known_intrinsics: let bundle adjustment refine a ``known_camera``.
-    hfov_guesses_deg: initial fields of view to try (None: ``DEFAULT_HFOV_GUESSES_DEG``).
-    focal_prior_hfov_deg: a field of view the images themselves state (EXIF 35 mm-equivalent focal
-        length, see ``nsim.sfm.frames.exif_hfov_deg``): tried first, as a focal-length prior.
-    refine_principal_point: "off" keeps it at the image centre; "on" lets the final bundle
-        adjustment refine it; "auto" refines it on a copy and keeps the result only when the data
-        supports it (see :data:`PP_AUTO_MIN_IMAGES`, :data:`PP_AUTO_MIN_GAIN`, :data:`PP_AUTO_MAX_SHIFT`).
-    """
-
-    camera_model: str = "SIMPLE_RADIAL"
-    shared_intrinsics: bool = True
-    matcher: str = "sequential"
-    overlap: int = 10
-    loop_detection: bool = True
-    max_features: int = 8192
-    device: str = "cpu"
-    num_threads: int = -1
-    seed: int = 0
-    deterministic: bool = True
-    min_registered_fraction: float = 0.5
-    retry_below_fraction: float = 0.95
-    refine_known_intrinsics: bool = False
-    hfov_guesses_deg: tuple[float, ...] | None = None
-    focal_prior_hfov_deg: float | None = None
-    refine_principal_point: str = "auto"
-
-    def __post_init__(self) -> None:
-        if self.camera_model not in CAMERA_MODELS:
-            raise ValueError(f"camera_model: {self.camera_model!r} is not one of {', '.join(CAMERA_MODELS)}")
-        if self.matcher not in MATCHERS:
-            raise ValueError(f"matcher: {self.matcher!r} is not one of {', '.join(MATCHERS)}")
-        if self.device not in DEVICES:
-            raise ValueError(f"device: {self.device!r} is not one of {', '.join(DEVICES)}")
-        if self.overlap < 1 or self.max_features < 16:
-            raise ValueError("overlap must be >= 1 and max_features >= 16")
-        for name in ("min_registered_fraction", "retry_below_fraction"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name}: must be in [0, 1], got {getattr(self, name)}")
-        if self.refine_principal_point not in PP_REFINE_CHOICES:
-            raise ValueError(f"refine_principal_point: {self.refine_principal_point!r} is not one of "
-                             f"{', '.join(PP_REFINE_CHOICES)}")
-        if self.focal_prior_hfov_deg is not None and not 0.0 < self.focal_prior_hfov_deg < 180.0:
-            raise ValueError(f"focal_prior_hfov_deg: expected (0, 180), got {self.focal_prior_hfov_deg}")
-        if self.hfov_guesses_deg is not None:
-            limit = 360.0 if self.camera_model in FISHEYE_MODELS else 180.0
-            if not self.hfov_guesses_deg or not all(0.0 < h < limit for h in self.hfov_guesses_deg):
-                raise ValueError(f"hfov_guesses_deg: expected values in (0, {limit:g}), got {self.hfov_guesses_deg}")
-
-    @property
-    def hfov_guesses(self) -> tuple[float, ...]:
-        guesses = self.hfov_guesses_deg or DEFAULT_HFOV_GUESSES_DEG[self.camera_model]
-        if self.focal_prior_hfov_deg is not None:
-            return (self.focal_prior_hfov_deg, *[g for g in guesses if g != self.focal_prior_hfov_deg])
-        return guesses
 
 
 @dataclass(frozen=True)
@@ -703,7 +631,7 @@ def colmap_log_level(level: int | None = None) -> Iterator[None]:
 def run_sfm(
     image_dir: str | os.PathLike,
     work_dir: str | os.PathLike,
-    options: SfmOptions = SfmOptions(),
+    options: SfmOptions = SfmOptions(),  # noqa: B008  (frozen: immutable)
     known_camera: Camera | None = None,
     image_names: list[str] | None = None,
     progress: ProgressFn | None = None,

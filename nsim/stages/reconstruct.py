@@ -49,10 +49,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nsim.config import from_dict, param
+from nsim.config import from_dict, param, param_from
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.progress import progress_bar
+from nsim.sfm.options import SfmOptions
 
 if TYPE_CHECKING:
     from nsim.sfm.imported import ImportPlan
@@ -61,30 +62,33 @@ log = logging.getLogger(__name__)
 
 STAGE = "reconstruct"
 VERSION = 4
-CAMERA_MODELS = ("SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE", "PINHOLE")
-MATCHERS = ("sequential", "exhaustive")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
 
 
 @dataclasses.dataclass(frozen=True)
 class Config:
+    """The SfM settings (camera_model ... refine_principal_point) are ``nsim.sfm.options.SfmOptions``'s
+    fields: their bounds, choices, help and defaults are written there (``param_from``)."""
+
     frames: int = param(150, ge=3, le=100_000, help="about this many frames are taken from a video")
     blur_ratio: float = param(0.4, ge=0.0, le=1.0, help="drop frames less sharp than this fraction of the video's "
                                                        "median sharpness")
     dedup_threshold: float = param(0.01, ge=0.0, help="drop frames closer than this to the last kept one "
                                                        "(mean absolute difference of 32x24 grey thumbnails, 0-1)")
-    camera_model: str = param("SIMPLE_RADIAL", choices=CAMERA_MODELS)
-    shared_intrinsics: bool = True
-    matcher: str = param("sequential", choices=MATCHERS)
-    overlap: int = param(10, ge=1, help="sequential matching: each frame against this many next ones")
-    loop_detection: bool = True
-    max_features: int = param(8192, ge=64)
-    min_registered_fraction: float = param(0.5, gt=0.0, le=1.0)
-    refine_principal_point: str = param("auto", choices=("auto", "on", "off"),
-                                        help="free the principal point in the final bundle adjustment "
-                                             "(auto: when it lowers the error, see nsim.sfm.colmap)")
+    camera_model: str = param_from(SfmOptions, "camera_model")
+    shared_intrinsics: bool = param_from(SfmOptions, "shared_intrinsics")
+    matcher: str = param_from(SfmOptions, "matcher")
+    overlap: int = param_from(SfmOptions, "overlap")
+    loop_detection: bool = param_from(SfmOptions, "loop_detection")
+    max_features: int = param_from(SfmOptions, "max_features")
+    min_registered_fraction: float = param_from(SfmOptions, "min_registered_fraction")
+    refine_principal_point: str = param_from(SfmOptions, "refine_principal_point")
     exif_focal_prior: bool = param(True, help="an image folder's EXIF 35 mm focal length as the first focal guess")
     max_dt_s: float = param(0.02, gt=0.0, help="largest timestamp gap when matching a reference")
+
+
+#: The settings of ``Config`` that are ``SfmOptions`` fields, passed on as they are.
+SFM_SETTINGS = tuple(f.name for f in dataclasses.fields(Config) if f.name in SfmOptions.__dataclass_fields__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -265,7 +269,7 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
         TransformsData,
         write_transforms,
     )
-    from nsim.sfm.colmap import SfmOptions, run_sfm, write_model
+    from nsim.sfm.colmap import run_sfm, write_model
     from nsim.sfm.frames import frame_summary_line, load_image_folder, select_video, write_frames
     from nsim.sfm.metric import to_metric
     from nsim.sfm.plot import write_top_down_png
@@ -304,12 +308,8 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
         from nsim.sfm.frames import exif_hfov_deg, list_image_files
 
         focal_prior = exif_hfov_deg(list_image_files(source))
-    options = SfmOptions(
-        camera_model=cfg.camera_model, shared_intrinsics=cfg.shared_intrinsics, matcher=cfg.matcher,
-        overlap=cfg.overlap, loop_detection=cfg.loop_detection, max_features=cfg.max_features, device=device,
-        seed=ctx.seed, min_registered_fraction=cfg.min_registered_fraction,
-        refine_principal_point=cfg.refine_principal_point, focal_prior_hfov_deg=focal_prior,
-    )
+    options = SfmOptions(**{name: getattr(cfg, name) for name in SFM_SETTINGS}, device=device, seed=ctx.seed,
+                         focal_prior_hfov_deg=focal_prior)
     with tempfile.TemporaryDirectory(prefix="nsim-sfm-") as work, \
             progress_bar(None, "structure from motion", ctx.show_progress) as bar:
         result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,

@@ -58,6 +58,7 @@ from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.skeleton import Skeleton, pose_aabb
+from nsim.io import atomic_path
 from nsim.metrics.image import psnr
 from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
@@ -537,11 +538,10 @@ def write_gif(path: str | os.PathLike, frames: list[np.ndarray], fps: float) -> 
     from PIL import Image
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     images = [Image.fromarray(np.ascontiguousarray(f)) for f in frames]
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=int(round(1000.0 / fps)),
-                   loop=0, optimize=False)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
+                       duration=int(round(1000.0 / fps)), loop=0, optimize=False)
     return path
 
 

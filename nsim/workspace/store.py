@@ -64,6 +64,7 @@ from typing import Any
 
 from nsim.config import canonical_json, to_dict
 from nsim.errors import InputError, WorkspaceError
+from nsim.io import atomic_write_bytes
 from nsim.workspace.fingerprint import code_fingerprint
 
 log = logging.getLogger(__name__)
@@ -186,17 +187,7 @@ def _write_atomic(path: Path, data: bytes) -> None:
     if path.is_dir() and not path.is_symlink():
         raise WorkspaceError(f"{path}: is a directory, cannot write a file there")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp_name(path)
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+    atomic_write_bytes(path, data, tmp=_tmp_name(path))
 
 
 def _make_writable(path: Path) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from nsim.config import from_dict, load_config
+from nsim.config import from_dict, load_config, read_preset
 from nsim.errors import InputError
 from nsim.train.scene import (
     SceneData,
@@ -22,15 +22,11 @@ from nsim.train.scene import (
     train_scene,
 )
 
-MICRO = {
-    "field": {"hash_levels": 4, "hash_log2_table_size": 10, "hash_max_resolution": 128, "hidden_dim": 16,
-              "color_hidden_dim": 16, "color_hidden_layers": 1, "appearance_dim": 4, "sh_degree": 2, "backend": "torch"},
-    "sampler": {"proposal_samples": [16, 8], "final_samples": 8, "proposal_hash_levels": 3,
-                "proposal_hash_log2_table_size": 10, "proposal_hash_max_resolutions": [32, 64], "proposal_hidden_dim": 8},
-    "optim": {"steps": 8, "rays_per_batch": 256, "num_threads": 1, "proposal_warmup_steps": 4, "proposal_update_every": 2},
-    "output": {"log_every": 2, "checkpoint_every": 3, "eval_views": 1, "final_eval_views": 2,
-               "occupancy_cell_m": 0.25, "obstacle_cell_m": 0.2},
-}
+#: The micro preset (``configs/train_scene/micro.yaml``, as the stage tests use it) over the dataclass
+#: defaults, with 8 steps, a checkpoint every 3 (the resume tests) and its own batch and grid sizes.
+MICRO = {k: dict(v) for k, v in read_preset("train_scene", "micro").items()}
+MICRO["optim"].update(steps=8, rays_per_batch=256, proposal_warmup_steps=4, proposal_update_every=2)
+MICRO["output"].update(log_every=2, checkpoint_every=3, final_eval_views=2, occupancy_cell_m=0.25, obstacle_cell_m=0.2)
 
 
 def micro_cfg(**sections) -> TrainSceneConfig:
