@@ -92,6 +92,47 @@ def _first_positive_root(coeffs_low_to_high) -> float:
     return float(positive.min()) if positive.size else math.inf
 
 
+#: The direction given to pixels a model cannot unproject when a caller asks for a finite ray
+#: (``fill_invalid``): straight ahead, camera axes. Such pixels are still invalid and must be masked.
+FORWARD_DIR = (0.0, 0.0, 1.0)
+
+
+def fill_invalid_dirs(dirs_cam: Array) -> tuple[Array, Array]:
+    """``dirs_cam (..., 3)`` with non-finite rows replaced by ``FORWARD_DIR``, and the validity mask ``(...,)``.
+
+    Numpy or torch (same kind, dtype and device back); the input is not modified.
+    """
+    if isinstance(dirs_cam, torch.Tensor):
+        valid = torch.isfinite(dirs_cam).all(-1)
+        fwd = torch.tensor(FORWARD_DIR, dtype=dirs_cam.dtype, device=dirs_cam.device)
+        return torch.where(valid[..., None], dirs_cam, fwd), valid
+    dirs_cam = np.asarray(dirs_cam)
+    valid = np.isfinite(dirs_cam).all(-1)
+    return np.where(valid[..., None], dirs_cam, np.asarray(FORWARD_DIR, dtype=dirs_cam.dtype)), valid
+
+
+def dirs_to_world(dirs_cam: Array, cam_to_world: Array, *, normalize: bool = True) -> tuple[Array, Array]:
+    """World-frame ray origins and directions from camera-axes directions (the camera-to-world rotation).
+
+    dirs_cam: ``(R, 3)``; cam_to_world: ``(4, 4)`` (one pose for all rays) or ``(R, 4, 4)`` (a pose a
+    ray), OpenCV axes, numpy or torch like ``dirs_cam``. Returns origins (a broadcast view of the
+    translation) and directions ``(R, 3)``, re-normalised to unit length with ``normalize``
+    (a pose refined by a learnt correction may not be exactly rigid).
+    """
+    torch_in = isinstance(dirs_cam, torch.Tensor)
+    if cam_to_world.ndim == 2:
+        dirs = dirs_cam @ cam_to_world[:3, :3].T
+    else:
+        dirs = (torch if torch_in else np).einsum("rij,rj->ri", cam_to_world[:, :3, :3], dirs_cam)
+    if torch_in:
+        if normalize:
+            dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+        return cam_to_world[..., :3, 3].expand_as(dirs), dirs
+    if normalize:
+        dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+    return np.broadcast_to(cam_to_world[..., :3, 3], dirs.shape), dirs
+
+
 @dataclass(frozen=True)
 class Camera:
     """Intrinsics of one camera; see the module docstring for the models and pixel convention.
@@ -323,25 +364,43 @@ class Camera:
             d = xp.stack([mx, my, xp.ones_like(mx)], -1)
         return d / xp.sqrt((d * d).sum(-1))[..., None]
 
-    def pixel_dirs_cam(self, like: Array | None = None) -> Array:
-        """Unit directions ``(H, W, 3)`` in camera axes through every pixel centre.
+    def pixel_centres(self, like: Array | None = None) -> Array:
+        """``uv (H, W, 2)`` = (column, row) of every pixel centre: whole numbers (OpenCV; module docstring).
 
-        Computed afresh on each call. Numpy float64 unless ``like`` is a tensor, whose dtype and
-        device are then used.
+        Numpy float64 unless ``like`` is a tensor, whose dtype (floating, else the default) and device are then used.
         """
         if isinstance(like, torch.Tensor):
             dtype = like.dtype if like.is_floating_point() else torch.get_default_dtype()
             u = torch.arange(self.width, dtype=dtype, device=like.device)
             v = torch.arange(self.height, dtype=dtype, device=like.device)
             uu, vv = torch.meshgrid(u, v, indexing="xy")
-            return self.unproject(torch.stack([uu, vv], -1))
+            return torch.stack([uu, vv], -1)
         uu, vv = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
-        return self.unproject(np.stack([uu, vv], -1))
+        return np.stack([uu, vv], -1)
+
+    def pixel_dirs_cam(self, like: Array | None = None, *, fill_invalid: bool = False) -> Array:
+        """Unit directions ``(H, W, 3)`` in camera axes through every pixel centre (``pixel_centres``).
+
+        Computed afresh on each call. Numpy float64 unless ``like`` is a tensor, whose dtype and
+        device are then used. Pixels the model cannot unproject are NaN, or ``FORWARD_DIR`` with
+        ``fill_invalid`` (see ``fill_invalid_dirs``).
+        """
+        return self.dirs_through(self.pixel_centres(like), fill_invalid=fill_invalid)
+
+    def dirs_through(self, uv: Array, *, fill_invalid: bool = False) -> Array:
+        """Unit directions ``(..., 3)`` in camera axes through the pixel centres ``uv (..., 2)`` (column, row).
+
+        ``unproject``, with the rows it cannot unproject (NaN) replaced by ``FORWARD_DIR`` when
+        ``fill_invalid`` (callers that need a finite ray and mask the pixel themselves).
+        """
+        d = self.unproject(uv)
+        return fill_invalid_dirs(d)[0] if fill_invalid else d
 
     def pixel_rays(self, cam_to_world: Array) -> tuple[Array, Array]:
         """World-frame ray origins and unit directions through every pixel centre.
 
         cam_to_world: (*batch, 4, 4), rigid, OpenCV axes. Returns origins, dirs: (*batch, H, W, 3).
+        Pixels the model cannot unproject get NaN directions.
         """
         c2w = _as_float(cam_to_world, "cam_to_world", (4, 4))
         xp = _namespace(c2w)

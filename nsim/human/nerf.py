@@ -50,8 +50,9 @@ differently as it turns. Density is zero outside the canonical box.
 Rendering. ``render_samples`` puts ``samples_per_ray`` stratified samples between each ray's
 entry into and exit from the posed body box (world axis-aligned, joints and end sites grown by
 ``box_padding_m``); rays that miss it get empty intervals (``t_start == t_end``, density 0).
-The samples are ``RaySamples`` like the scene model's, so ``merge_samples`` sorts human and
-scene samples along the same rays and ``render_merged`` volume-renders them together.
+The samples are ``RaySamples`` like the scene model's, so ``render_merged`` volume-renders human
+and scene samples along the same rays together, in depth order, with the renderer's compositing
+(``nsim.rendering.compositing``).
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ from nsim.fields.hash_encoding import HashEncoding
 from nsim.fields.mlp import MLP
 from nsim.fields.scene_field import trunc_exp
 from nsim.human.skeleton import Skeleton, default_padding_m, pose_aabb
-from nsim.rendering import volume
+from nsim.rendering.compositing import composite_sets, merge_samples, set_weights
 from nsim.rendering.model import RaySamples
 from nsim.rendering.rays import camera_dirs, rays_from_pixels
 
@@ -264,8 +265,8 @@ class MergedRender:
     """Per-ray result of rendering several sample sets together (R rays).
 
     rgb: (R, 3); accumulation: (R,) total opacity; depth: (R,) expected range (metres along the
-    unit ray); alpha: (K, R) each input set's visible opacity (its share of the weights),
-    e.g. the person mask of a human set.
+    unit ray, ``nsim.rendering.volume.expected_depth``); alpha: (K, R) each input set's visible
+    opacity (its share of the weights), e.g. the person mask of a human set.
     """
 
     rgb: Tensor
@@ -274,38 +275,11 @@ class MergedRender:
     alpha: Tensor
 
 
-def merge_samples(*sets: RaySamples) -> tuple[RaySamples, Tensor]:
-    """Concatenate sample sets on the same rays and sort each ray's samples by ``t_starts``.
-
-    Every set is ``(R, S_k)``; returns the merged ``(R, sum S_k)`` samples and ``source (R, S)``
-    int64: the index of the set each sample came from. Overlapping intervals are treated as
-    consecutive (their optical depths add), as ``nsim.rendering.model.composite`` does.
-    """
-    if not sets:
-        raise ValueError("merge_samples: expected at least one sample set")
-    t0 = torch.cat([s.t_starts for s in sets], dim=1)
-    t1 = torch.cat([s.t_ends for s in sets], dim=1)
-    sigma = torch.cat([s.sigma for s in sets], dim=1)
-    rgb = torch.cat([s.rgb for s in sets], dim=1)
-    source = torch.cat([torch.full_like(s.t_starts, k, dtype=torch.long) for k, s in enumerate(sets)], dim=1)
-    order = torch.argsort(t0, dim=1, stable=True)
-    rgb = torch.gather(rgb, 1, order[..., None].expand(-1, -1, rgb.shape[-1]))
-    merged = RaySamples(torch.gather(t0, 1, order), torch.gather(t1, 1, order), torch.gather(sigma, 1, order), rgb)
-    return merged, torch.gather(source, 1, order)
-
-
 def render_merged(*sets: RaySamples, background_rgb: Tensor | None = None) -> MergedRender:
-    """Volume-render sample sets together in depth order, over ``background_rgb`` ((3,) or (R, 3))."""
-    merged, source = merge_samples(*sets)
-    weights, _ = volume.render_weights(merged.sigma, merged.t_ends - merged.t_starts)
-    acc = weights.sum(-1)
-    rgb = volume.accumulate(weights, merged.rgb)
-    if background_rgb is not None:
-        rgb = rgb + (1.0 - acc)[:, None] * background_rgb.to(rgb)
-    mid = 0.5 * (merged.t_starts + merged.t_ends)
-    depth = (weights * mid).sum(-1) / acc.clamp(min=volume.EPS)
-    alpha = torch.stack([(weights * (source == k)).sum(-1) for k in range(len(sets))])
-    return MergedRender(rgb, acc, depth, alpha)
+    """Volume-render sample sets together in depth order, over ``background_rgb`` ((3,) or (R, 3)):
+    ``nsim.rendering.compositing.composite_sets``, the renderer's compositing, with each set's opacity."""
+    out, source = composite_sets(*sets, background_rgb=background_rgb)
+    return MergedRender(out.rgb, out.accumulation, out.depth, set_weights(out.weights, source, len(sets)))
 
 
 def empty_samples(n_rays: int, device: str | torch.device = "cpu") -> RaySamples:

@@ -13,7 +13,7 @@ import importlib
 # name -> submodule; imported on first use, so that torch-free parts (engine, culling) stay light
 _EXPORTS = {
     "RaySamples": "model", "RenderOutput": "model", "SamplerConfig": "model", "SceneModel": "model",
-    "composite": "model", "load_model": "model", "save_model": "model",
+    "composite": "compositing", "load_model": "model", "save_model": "model",
     "ObstacleMap": "occupancy", "OccupancyGrid": "occupancy", "obstacle_map": "occupancy",
     "PoseRefinement": "rays", "Rays": "rays", "make_rays": "rays", "se3_exp": "rays",
     "MarchConfig": "renderer", "RenderedView": "renderer", "camera_rays": "renderer", "march": "renderer",

@@ -332,6 +332,16 @@ def camera_box_bounds(
     return _angular_bounds(camera, box_cam, near_m, margin_px)
 
 
+def pixels_in_bounds(camera: Camera, bounds: Bounds) -> np.ndarray:
+    """``(H * W,)`` bool, row-major: the pixels whose centre (whole-number coordinates, the bound's own)
+    lies in ``bounds``. A pixel ray meets the box only if its centre projects inside the bound, so
+    these are exactly the camera rays that can meet it."""
+    u0, v0, u1, v1 = bounds
+    centres = camera.pixel_centres()
+    uu, vv = centres[..., 0], centres[..., 1]
+    return ((uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)).reshape(-1)
+
+
 def bounds_to_pixel_box(camera: Camera, bounds: Bounds | None) -> tuple[int, int, int, int] | None:
     """Integer pixels to render for a bound: ``(col0, row0, col1, row1)``, half-open (``col1``,
     ``row1`` excluded), every pixel whose footprint ``[u - 0.5, u + 0.5]`` meets the bound.

@@ -116,7 +116,8 @@ class SamplerConfig:
 
 @dataclass
 class RaySamples:
-    """Samples along rays, for compositing with other fields' samples (e.g. the human field).
+    """Samples along rays, for compositing with other fields' samples (e.g. the human field;
+    ``nsim.rendering.compositing``).
 
     t_starts, t_ends: (R, S) metres along the (unit) ray; sigma: (R, S) 1/m; rgb: (R, S, 3).
     Padding samples have ``t_starts == t_ends`` and ``sigma == 0``.
@@ -147,28 +148,6 @@ class RenderOutput:
     bins: Tensor | None = None
     proposal_weights: list[Tensor] | None = None
     proposal_bins: list[Tensor] | None = None
-
-
-def composite(samples: RaySamples, background_rgb: Tensor | None = None) -> RenderOutput:
-    """Volume-render samples that may come from several fields, in any order along the ray.
-
-    Sorts each ray's samples by ``t_starts`` first, so scene and human samples can simply be
-    concatenated along ``S``. Overlapping intervals are treated as consecutive.
-    """
-    order = torch.argsort(samples.t_starts, dim=-1, stable=True)
-    t0 = torch.gather(samples.t_starts, -1, order)
-    t1 = torch.gather(samples.t_ends, -1, order)
-    sigma = torch.gather(samples.sigma, -1, order)
-    rgb = torch.gather(samples.rgb, 1, order[..., None].expand(-1, -1, 3))
-    weights, _ = volume.render_weights(sigma, t1 - t0)
-    acc = weights.sum(-1)
-    out = volume.accumulate(weights, rgb)
-    if background_rgb is not None:
-        out = out + (1.0 - acc)[:, None] * background_rgb
-    mid = 0.5 * (t0 + t1)
-    bg = None if background_rgb is None else background_rgb.to(out).expand_as(out)
-    return RenderOutput(out, volume.expected_depth(weights, mid, acc), volume.median_depth(weights, mid), acc, weights,
-                        RaySamples(t0, t1, sigma, rgb), background=bg)
 
 
 class SceneModel(nn.Module):

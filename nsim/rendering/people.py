@@ -10,7 +10,8 @@ k mod M). Per frame:
 2. ``visible``: the paper's Algorithm 1, corrected (``nsim.rendering.culling``): the people whose
    posed box the sensor's rays can see, with the rays to cast their samples on;
 3. ``composite``: the scene's samples and every visible person's merged in depth order, one volume
-   rendering over both; the instance id of a ray is the person holding more than half its weight.
+   rendering over both (``nsim.rendering.compositing``, the human trainer's compositing too); the
+   instance id of a ray is the person holding more than half its weight.
 
 Used by ``nsim.rendering.shard`` (``nsim render``) and, for the ground truth of the same poses,
 ``nsim.evaluation.oracle``.
@@ -102,7 +103,12 @@ class HumanSet:
         sensor's range) among the ``valid (N,)`` rays; the mask keeps the rays that meet it."""
         import torch
 
-        from nsim.rendering.culling import OrientedBox, camera_box_bounds, lidar_ray_box_mask
+        from nsim.rendering.culling import (
+            OrientedBox,
+            camera_box_bounds,
+            lidar_ray_box_mask,
+            pixels_in_bounds,
+        )
 
         people = []
         o = d = None
@@ -116,10 +122,7 @@ class HumanSet:
                 bounds = camera_box_bounds(camera, np.linalg.inv(cam_to_world), box)
                 if bounds is None:
                     continue
-                u0, v0, u1, v1 = bounds
-                h, w = camera.height, camera.width
-                uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-                inside = ((uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)).reshape(-1)
+                inside = pixels_in_bounds(camera, bounds)
             if o is None:
                 o = origins.cpu().numpy().astype(np.float64)
                 d = dirs.cpu().numpy().astype(np.float64)
@@ -141,7 +144,8 @@ class HumanSet:
         ``chunk_rays`` (the scene's rendering) and ``culling`` (the people's box test)."""
         import torch
 
-        from nsim.rendering.model import RaySamples, composite
+        from nsim.rendering.compositing import composite_sets, set_weights
+        from nsim.rendering.model import RaySamples
         from nsim.rendering.renderer import render_rays
 
         n = len(rays)
@@ -155,7 +159,6 @@ class HumanSet:
         if len(idx):
             sub = rays[idx]
             parts = [RaySamples(*(getattr(scene_out.samples, f)[idx] for f in ("t_starts", "t_ends", "sigma", "rgb")))]
-            owners = [torch.zeros_like(parts[0].sigma, dtype=torch.long)]
             live = torch.zeros(len(idx), dtype=torch.bool)  # rays where some person has a sample of non-zero length
             for p in people:
                 m = p["mask"][idx]
@@ -165,25 +168,18 @@ class HumanSet:
                 sig = torch.where(m[:, None], hs.sigma, 0.0)
                 live |= m & (hs.t_ends > hs.t_starts).any(-1)
                 parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
-                owners.append(torch.full_like(sig, p["k"] + 1, dtype=torch.long))
             # a ray that no person's samples reach keeps the scene's own rendering, bit for bit (re-compositing
             # the same samples after a merge can round differently): culling on or off, the same image
             parts = [RaySamples(*(getattr(q, f)[live] for f in ("t_starts", "t_ends", "sigma", "rgb"))) for q in parts]
-            owners = [o[live] for o in owners]
             idx = idx[live]
         if len(idx):
-            merged = RaySamples(*(torch.cat([getattr(q, f) for q in parts], dim=1)
-                                  for f in ("t_starts", "t_ends", "sigma", "rgb")))
-            comp = composite(merged, scene_out.background[idx])  # the scene's per-ray background
-            owner = torch.cat(owners, dim=1)
-            order = torch.argsort(merged.t_starts, dim=-1, stable=True)
-            owner = torch.gather(owner, -1, order)
+            # set 0 the scene's samples, set j + 1 person people[j]'s: the trainer's compositing (render_merged)
+            comp, source = composite_sets(*parts, background_rgb=scene_out.background[idx])  # the scene's background
             # instance: the person holding the most weight on the ray, if they hold more than half
-            per = torch.zeros(len(idx), len(people) + 1)
-            for j, p in enumerate(people):
-                per[:, j + 1] = (comp.weights * (owner == p["k"] + 1)).sum(-1)
-            best = per.argmax(-1)
-            strong = per.max(-1).values > 0.5
+            per = set_weights(comp.weights, source, len(parts))  # (1 + people, R)
+            per[0] = 0.0  # the scene is no instance
+            best = per.argmax(0)
+            strong = per.max(0).values > 0.5
             ids = torch.tensor([0] + [p["k"] + 1 for p in people])[best]
             instance[idx.numpy()] = torch.where(strong, ids, 0).numpy().astype(np.uint16)
             for f in ("rgb", "depth", "depth_median", "accumulation"):

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from nsim.geometry.cameras import dirs_to_world
+
 
 @dataclass
 class Rays:
@@ -68,18 +70,16 @@ def make_rays(origins: Tensor, dirs: Tensor, near_m: float, far_m: float, aabb: 
 def camera_dirs(camera, device: str | torch.device = "cpu") -> Tensor:
     """Unit directions through every pixel centre in camera axes: ``(H, W, 3)`` float32.
 
-    Pixels a model cannot unproject (NaN) get ``(0, 0, 1)`` and should be masked by the caller.
+    ``Camera.pixel_dirs_cam`` (float64) in float32; pixels a model cannot unproject get
+    ``FORWARD_DIR`` ``(0, 0, 1)`` and should be masked by the caller.
     """
-    d = torch.as_tensor(camera.pixel_dirs_cam(), dtype=torch.float32)
-    bad = ~torch.isfinite(d).all(-1)
-    d[bad] = torch.tensor([0.0, 0.0, 1.0])
-    return d.to(device)
+    return torch.as_tensor(camera.pixel_dirs_cam(fill_invalid=True), dtype=torch.float32).to(device)
 
 
 def rays_from_pixels(dirs_cam: Tensor, cam_to_world: Tensor) -> tuple[Tensor, Tensor]:
-    """World origins and dirs ``(R, 3)`` from camera-axes dirs ``(R, 3)`` and per-ray ``cam_to_world (R, 4, 4)``."""
-    dirs = torch.einsum("rij,rj->ri", cam_to_world[:, :3, :3], dirs_cam)
-    return cam_to_world[:, :3, 3].expand_as(dirs), dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+    """World origins and dirs ``(R, 3)`` from camera-axes dirs ``(R, 3)`` and per-ray ``cam_to_world (R, 4, 4)``
+    (``nsim.geometry.cameras.dirs_to_world``, re-normalised)."""
+    return dirs_to_world(dirs_cam, cam_to_world)
 
 
 def _skew(v: Tensor) -> Tensor:

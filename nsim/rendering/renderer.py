@@ -24,7 +24,7 @@ only its per-ray fields (rgb, depth, depth_median, accumulation, background: 36 
 by chunk, so a 1920x1080 view does not hold gigabytes of per-sample output; with
 ``return_samples=True`` it carries the per-sample ``(t_starts, t_ends, sigma, rgb)`` of the
 samples that were evaluated, so a later renderer can merge them with another field's samples
-along the same rays (``nsim.rendering.model.composite``).
+along the same rays (``nsim.rendering.compositing``).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ import torch
 from torch import Tensor
 
 from nsim.config import param
+from nsim.geometry.cameras import dirs_to_world, fill_invalid_dirs
 from nsim.rendering import volume
 from nsim.rendering.model import RaySamples, RenderOutput, SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
@@ -314,17 +315,14 @@ def camera_rays(model: SceneModel, camera, cam_to_world: np.ndarray | Tensor) ->
     a validity mask ``(H*W,)`` (pixels the camera model cannot unproject are invalid).
     """
     device = model.aabb.device
-    d = torch.as_tensor(np.asarray(camera.pixel_dirs_cam()), dtype=torch.float32).reshape(-1, 3)
-    valid = torch.isfinite(d).all(-1)
-    d = torch.where(valid[:, None], d, torch.tensor([0.0, 0.0, 1.0])).to(device)
+    d, valid = fill_invalid_dirs(np.asarray(camera.pixel_dirs_cam()).reshape(-1, 3))
+    d = torch.as_tensor(d, dtype=torch.float32).to(device)
     c2w = torch.as_tensor(np.asarray(cam_to_world, dtype=np.float32) if not isinstance(cam_to_world, Tensor)
                           else cam_to_world.float()).to(device)
-    dirs = d @ c2w[:3, :3].T
-    dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
-    origins = c2w[:3, 3].expand_as(dirs)
+    origins, dirs = dirs_to_world(d, c2w)
     cfg = model.sampler_cfg
     rays = make_rays(origins, dirs, cfg.near_m, cfg.far_m, model.aabb if cfg.clip_rays_to_box else None)
-    return rays, d, valid.to(device)
+    return rays, d, torch.as_tensor(valid).to(device)
 
 
 def render_camera(model: SceneModel, camera, cam_to_world: np.ndarray | Tensor, method: str = AUTO,

@@ -150,15 +150,13 @@ class ShardRenderer:
         return row
 
     def _render_pose_frame(self, frame: dict, out_dir: Path) -> dict:
-        from nsim.geometry import Camera
+        from nsim.geometry.cameras import Camera, dirs_to_world, fill_invalid_dirs
 
         cam = Camera.from_dict(frame["camera"])
         c2w = np.asarray(frame["cam_to_world"], dtype=np.float64)
         dirs_cam = cam.pixel_dirs_cam().reshape(-1, 3)
-        valid = np.isfinite(dirs_cam).all(-1)
-        d = np.where(valid[:, None], dirs_cam, [0.0, 0.0, 1.0]) @ c2w[:3, :3].T
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        o = np.broadcast_to(c2w[:3, 3], d.shape)
+        filled, valid = fill_invalid_dirs(dirs_cam)
+        o, d = dirs_to_world(filled, c2w)
         res = self._render_rays(o, d, valid, 0.0, float("inf"), [], cam, c2w)
         h, w = cam.height, cam.width
         i = frame["index"]

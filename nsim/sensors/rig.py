@@ -62,7 +62,7 @@ import yaml
 
 from nsim.config import from_dict, param, parse_yaml, to_dict
 from nsim.errors import ConfigError, NsimError
-from nsim.geometry.cameras import MODELS, Camera
+from nsim.geometry.cameras import MODELS, Camera, dirs_to_world
 from nsim.geometry.transforms import is_rotation, make_se3, matrix_from_quat_wxyz
 from nsim.sensors.depth import DepthConfig, apply_depth_model, range_to_z_depth
 from nsim.sensors.lidar import BeamPattern, LidarConfig
@@ -204,8 +204,8 @@ class Sensor:
         pose = self.world_pose(body_to_world)
         if pose.shape != (4, 4):
             raise ValueError(f"body_to_world: expected shape (4, 4), got {pose.shape}")
-        dirs = self.dirs_sensor.reshape(-1, 3) @ pose[:3, :3].T
-        return np.ascontiguousarray(np.broadcast_to(pose[:3, 3], dirs.shape)), dirs
+        origins, dirs = dirs_to_world(self.dirs_sensor.reshape(-1, 3), pose, normalize=False)
+        return np.ascontiguousarray(origins), dirs
 
 
 @dataclass(frozen=True, eq=False)

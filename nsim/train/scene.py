@@ -428,9 +428,8 @@ class SceneTrainer(ResumableTrainer):
         idx = cam_idx.cpu()
         for c in torch.unique(idx).tolist():  # the same float64 arithmetic as the table, pixel by pixel
             rows = torch.nonzero(idx == c, as_tuple=True)[0]
-            d = torch.as_tensor(np.asarray(self.data.cameras[c].unproject(uv[rows.numpy()])), dtype=torch.float32)
-            d[~torch.isfinite(d).all(-1)] = torch.tensor([0.0, 0.0, 1.0])
-            out[rows] = d
+            d = self.data.cameras[c].dirs_through(uv[rows.numpy()], fill_invalid=True)
+            out[rows] = torch.as_tensor(np.asarray(d), dtype=torch.float32)
         return out.to(self.device)
 
     def _rays(self, dirs_cam: Tensor, img: Tensor) -> Rays:

@@ -92,10 +92,7 @@ def pixel_rays(view: ViewRays, v: Tensor, u: Tensor, device: torch.device):
     """Rays through pixel centres ``(u, v)`` (column, row; ``(R,)`` each) of ``view``, and their
     camera-axes z component (z-depth = range * z). Pixels the camera cannot unproject look along +z."""
     uv = torch.stack([u, v], -1).double().numpy()
-    d = torch.as_tensor(np.asarray(view.camera.unproject(uv)), dtype=torch.float32)
-    bad = ~torch.isfinite(d).all(-1)
-    d[bad] = torch.tensor([0.0, 0.0, 1.0])
-    d = d.to(device)
+    d = torch.as_tensor(np.asarray(view.camera.dirs_through(uv, fill_invalid=True)), dtype=torch.float32).to(device)
     origins, dirs = rays_from_pixels(d, view.cam_to_world.to(device).expand(len(d), 4, 4))
     return make_rays(origins, dirs, view.near, view.far, view.aabb), d[:, 2]
 

@@ -16,6 +16,7 @@ from nsim.rendering.culling import (
     lidar_ray_box_mask,
     naive_corner_bounds,
     naive_corner_test,
+    pixels_in_bounds,
     ray_box_intervals,
 )
 from nsim.sensors import Rig
@@ -200,6 +201,28 @@ def test_oriented_box_corners_round_trip():
     np.testing.assert_allclose(posed.half_extents, [0.3, 0.2, 0.9])
     with pytest.raises(ValueError, match="not the corners of a box"):
         OrientedBox.from_corners(b.corners()[[1, 0, 2, 3, 4, 5, 6, 7]])
+
+
+@pytest.mark.parametrize("name", ["pinhole", "opencv", "fisheye"])
+def test_every_camera_ray_that_meets_the_box_is_in_the_bound(name):
+    """pixels_in_bounds keeps every pixel whose ray meets the box (pixel centres are whole numbers,
+    the bound's coordinates), and few others; a box at the image's right and bottom edges too."""
+    camera = CAMERAS[name]
+    # the last: a box square to the camera, its right edge 0.137 px right of a pixel centre (the old u + 0.5
+    # test culled that column and the bottom row: 59 rays through the box)
+    for b in (box([0.4, -0.2, 5.0], [0.3, 0.9, 0.25], yaw_deg=30.0), box([1.6, 1.1, 4.0], [0.5, 0.4, 0.3], yaw_deg=10.0),
+              box([0.3, 0.1, 5.0], [0.4, 0.6, 0.3])):
+        bounds = camera_box_bounds(camera, IDENTITY, b)
+        assert bounds is not None
+        keep = pixels_in_bounds(camera, bounds)
+        origins, dirs = camera.pixel_rays(np.eye(4))
+        ok = np.isfinite(dirs).all(-1).reshape(-1)
+        hits = np.zeros(ok.shape, dtype=bool)
+        hits[ok] = lidar_ray_box_mask(origins.reshape(-1, 3)[ok], dirs.reshape(-1, 3)[ok], b, 0.0, 100.0)
+        assert hits.sum() > 20
+        assert np.all(keep[hits])  # no ray through the box is culled
+        col0, row0, col1, row1 = bounds_to_pixel_box(camera, bounds)
+        assert keep.sum() <= (col1 - col0) * (row1 - row0)  # nothing outside the bound's pixels
 
 
 def test_ray_box_slab_against_marching():

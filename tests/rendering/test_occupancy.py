@@ -96,7 +96,7 @@ def test_chunked_render_and_samples():
     s = parts.samples
     assert s.t_starts.shape == s.sigma.shape and s.rgb.shape == (*s.sigma.shape, 3)
     # re-compositing the returned samples gives the rendered colour
-    from nsim.rendering.model import composite
+    from nsim.rendering.compositing import composite
 
     again = composite(s)
     assert_close(again.rgb, parts.rgb, atol=2e-3, rtol=0)

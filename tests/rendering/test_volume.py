@@ -8,7 +8,8 @@ import torch
 from torch.testing import assert_close
 
 from nsim.rendering import volume
-from nsim.rendering.model import RaySamples, composite
+from nsim.rendering.compositing import composite
+from nsim.rendering.model import RaySamples
 from tests.rendering.reference import distortion_quadratic, render_weights_loop
 
 
