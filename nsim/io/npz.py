@@ -1,11 +1,12 @@
 """Numpy ``.npz`` archives: read without pickles, every member loaded, damage as one line.
 
-The writer that makes them byte-identical across runs is ``save_npz_deterministic`` in
-``nsim.stages.simulate``; this is the one reader for archives found in a workspace or given by a user.
+``save_npz_deterministic`` writes them byte-identical across runs; ``read_npz`` is the one reader for
+archives found in a workspace or given by a user.
 """
 
 from __future__ import annotations
 
+import io
 import zipfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -28,3 +29,15 @@ def read_npz(path: Path, required: Iterable[str] = ()) -> dict[str, np.ndarray]:
     if missing:
         raise InputError(f"{path}: missing array(s) {', '.join(missing)}")
     return arrays
+
+
+def save_npz_deterministic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Like ``np.savez_compressed`` but byte-identical across runs (fixed zip entry timestamps)."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name in sorted(arrays):
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asarray(arrays[name]), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, buf.getvalue())
