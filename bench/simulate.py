@@ -8,7 +8,9 @@ jittered-lattice start to a random free goal, 0.05 s steps, no robot, no groups.
 ``nsim.crowd.step`` (anisotropic elliptical repulsion, walls through a segment grid, KD-tree
 neighbours within 3 m, fluctuation); PySocialForce 1.1.2 runs its default forces (desired,
 social, obstacle: all pairs, and every obstacle sample point for every agent) with
-``step_width = 0.05`` and ``agent_radius = 0.25``. Each size is warmed up, then stepped for at
+``step_width = 0.05`` and ``agent_radius = 0.25`` at its config's top level, where 1.1.2 reads them
+(under ``[scene]`` they are ignored), read back from the simulator before timing and printed
+(``pysocialforce_effective``); a mismatch stops the bench. Each size is warmed up, then stepped for at
 least ``--min-time-s`` (one step at least). ``--quick``: 10 and 100 agents.
 
 PySocialForce is not a dependency of nsim: install it (it needs numba) outside the project's
@@ -119,12 +121,28 @@ def bench_nsim(s, min_time_s: float, max_steps: int) -> float:
     return time_steps(once, min_time_s, max_steps)[0]
 
 
+#: What PySocialForce must run with, read back from its simulator (``psf_effective``) before any timing.
+PSF_WANTED = {"step_width": DT_S, "agent_radius": 0.25, "max_speed_multiplier": 1.3, "tau": 0.5, "enable_group": False}
+
+
 def psf_config_file(tmp: Path) -> Path:
+    """PySocialForce 1.1.2 hands its pedestrians the *whole* config (``PedState(state, groups, self.config)``),
+    so ``step_width``, ``agent_radius``, ``tau`` and ``max_speed_multiplier`` are read at the top level; only
+    ``enable_group`` is read under ``[scene]``. Under ``[scene]`` the others are ignored (0.4 s steps, 0.35 m)."""
     p = tmp / "psf.toml"
+    w = PSF_WANTED
     p.write_text(
-        f"[scene]\nenable_group = false\nagent_radius = 0.25\nstep_width = {DT_S}\nmax_speed_multiplier = 1.3\ntau = 0.5\nresolution = 10\n"
+        f"step_width = {w['step_width']}\nagent_radius = {w['agent_radius']}\nmax_speed_multiplier = "
+        f"{w['max_speed_multiplier']}\ntau = {w['tau']}\nresolution = 10\n\n[scene]\nenable_group = false\n"
     )
     return p
+
+
+def psf_effective(sim) -> dict[str, float | bool]:
+    """The settings a PySocialForce simulator actually runs with (read from its objects, not the file)."""
+    return {"step_width": float(sim.peds.step_width), "agent_radius": float(sim.peds.agent_radius),
+            "max_speed_multiplier": float(sim.peds.max_speed_multiplier), "tau": float(sim.peds.default_tau),
+            "enable_group": bool(sim.scene_config("enable_group"))}
 
 
 def bench_psf(psf, s, config: Path, min_time_s: float, max_steps: int) -> float:
@@ -133,6 +151,9 @@ def bench_psf(psf, s, config: Path, min_time_s: float, max_steps: int) -> float:
     # 0.1 m end caps (fewer than 2 samples), which no agent comes near
     obstacles = [(a[0], b[0], a[1], b[1]) for a, b in s["walls"] if np.linalg.norm(b - a) >= 0.2]
     sim = psf.Simulator(state, groups=None, obstacles=obstacles, config_file=str(config))
+    got = psf_effective(sim)
+    if got != PSF_WANTED:
+        raise SystemExit(f"PySocialForce is not configured as meant: runs with {got}, wanted {PSF_WANTED}")
     return time_steps(sim.step_once, min_time_s, max_steps)[0]
 
 
@@ -166,8 +187,10 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         config = psf_config_file(Path(tmp))
+        psf_settings = None
         if psf is not None:  # compile PySocialForce's numba kernels before timing anything
             bench_psf(psf, plaza(10), config, 0.0, 1)
+            psf_settings = dict(PSF_WANTED)  # bench_psf stops unless the simulator runs with exactly these
         for n in sizes:
             s = plaza(n)
             ours = bench_nsim(s, min_time, 10_000)
@@ -224,6 +247,7 @@ def main() -> None:
                 "ratio_at_1000": ratio_1000,
                 "cost_exponent": {"nsim": exp_ours, "pysocialforce": exp_psf},
                 "pysocialforce": psf_version or f"n/a: {PSF_HOWTO}",
+                "pysocialforce_effective": psf_settings,
                 "dt_s": DT_S,
                 "density_per_m2": DENSITY_PER_M2,
             }
