@@ -379,47 +379,45 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
                 fit_generator: Callable[[int], torch.Generator], final: bool = True, pool: Executor | None = None,
                 image_dir: Path | None = None, seed_note: str = "with a generator seeded by (seed, frame)") -> dict[str, Any]:
     """Scores of frames ``views`` of ``data`` (:class:`~nsim.train.scene_data.SceneData`) at
-    ``cfg.image_side`` (0: as captured), one view at a time (:func:`score_view`; the ground truth read
-    again at that size). ``fit_generator(frame)``: the generator of that frame's fit pixels.
+    ``cfg.image_side`` (0: as captured), ``FIT_GROUP_VIEWS`` views at a time: their ground truth read once at
+    that size, their appearance codes fitted together (:func:`fit_codes`), then each scored
+    (:func:`score_view`). ``fit_generator(frame)``: the generator of that frame's fit pixels.
     ``image_dir``: each render beside its ground truth is written there (``frame_NNNNN.png``, under a
     label strip ``<image name> render | ground truth``, ``nsim.io.labels``).
     Returns ``views`` (one row each), ``mean``, ``resolution`` (scored and captured ``[w, h]``) and ``protocol``."""
     from nsim.io.images import to_uint8, write_image
     from nsim.io.labels import add_label
 
-    codes: dict[int, Tensor] = {}
-    if final and cfg.fit_steps > 0 and model.field.appearance is not None:
-        for g in range(0, len(views), FIT_GROUP_VIEWS):  # the codes of a group of views in one fit
-            fits, targets, group = [], [], []
-            for i in views[g : g + FIT_GROUP_VIEWS]:
-                camera = data.eval_camera(i, cfg.image_side)
-                if not fits_half(model, cfg, camera.width):
-                    continue
-                gt = data.eval_image(i, camera).astype(np.float32) / 255.0
-                fit, target = left_half_fit(model, frame_view(model, data.cam_to_world[i], camera), gt, cfg,
-                                            fit_generator(int(i)))
-                fits.append(fit)
-                targets.append(target)
-                group.append(i)
-            if fits:
-                codes.update(zip(group, fit_codes(fits, targets, mean_code(model), cfg.fit_steps, cfg.fit_lr),
-                                 strict=True))
-            del fits, targets
     rows = []
     scored = None
-    for i in views:
-        camera = data.eval_camera(i, cfg.image_side)
-        scored = [camera.width, camera.height]
-        gt = data.eval_image(i, camera)
-        save = None
-        if image_dir is not None:
-            def save(rgb, i=i, gt=gt):
-                write_image(Path(image_dir) / f"frame_{i:05d}.png",
-                            add_label(np.concatenate([to_uint8(rgb), gt], axis=1),
-                                      [f"{data.names[i]} render", "ground truth"]))
-        row = score_view(model, frame_view(model, data.cam_to_world[i], camera), gt, data.eval_depth_z(i, camera),
-                         chunk, cfg, final, fit_generator(int(i)), pool, save, code=codes.get(i))
-        rows.append({"frame": int(i), "name": data.names[i], **row})
+    fitting = final and cfg.fit_steps > 0 and model.field.appearance is not None
+    for g in range(0, len(views), FIT_GROUP_VIEWS):  # a group's ground truth read once: its codes fitted together, then scored
+        group = []
+        for i in views[g : g + FIT_GROUP_VIEWS]:
+            camera = data.eval_camera(i, cfg.image_side)
+            group.append((i, camera, frame_view(model, data.cam_to_world[i], camera), data.eval_image(i, camera)))
+        codes: dict[int, Tensor] = {}
+        fits, targets, fitted = [], [], []
+        for i, camera, view, gt in group if fitting else ():
+            if fits_half(model, cfg, camera.width):
+                fit, target = left_half_fit(model, view, gt.astype(np.float32) / 255.0, cfg, fit_generator(int(i)))
+                fits.append(fit)
+                targets.append(target)
+                fitted.append(i)
+        if fits:
+            codes = dict(zip(fitted, fit_codes(fits, targets, mean_code(model), cfg.fit_steps, cfg.fit_lr), strict=True))
+        del fits, targets
+        for i, camera, view, gt in group:
+            scored = [camera.width, camera.height]
+            save = None
+            if image_dir is not None:
+                def save(rgb, i=i, gt=gt):
+                    write_image(Path(image_dir) / f"frame_{i:05d}.png",
+                                add_label(np.concatenate([to_uint8(rgb), gt], axis=1),
+                                          [f"{data.names[i]} render", "ground truth"]))
+            row = score_view(model, view, gt, data.eval_depth_z(i, camera), chunk, cfg, final, fit_generator(int(i)),
+                             pool, save, code=codes.get(i))
+            rows.append({"frame": int(i), "name": data.names[i], **row})
     fh, fw = data.full_size_hw
     return {"views": rows, "mean": mean_scores(rows),
             "resolution": {"scored_wh": scored, "captured_wh": [fw, fh], "eval.image_side": cfg.image_side},
