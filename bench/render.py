@@ -140,11 +140,9 @@ def heldout(ctx: RunContext, cap_id: str, scene_id: str, method: str, max_views:
 
 
 def spot_run(ctx: RunContext, quick: bool) -> str:
-    from nsim.crowd.scenario import load_scenario
-
     cfg = load_config(simulate.Config, stage="simulate", preset="tiny" if quick else "default",
                       overrides=["video=false"])
-    sc = load_scenario(configs_dir() / "scenarios" / "spot_run.json", store=ctx.store)
+    sc = simulate.load_scenario(configs_dir() / "scenarios" / "spot_run.json", store=ctx.store)
     return simulate.run(simulate.Inputs(sc), cfg, ctx).trajectory
 
 

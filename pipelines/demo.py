@@ -18,7 +18,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from nsim.cli import main as nsim_main  # noqa: E402
 from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
-from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
 from nsim.stages import (  # noqa: E402
     capture,
@@ -86,7 +85,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
 
     repo = Path(__file__).resolve().parents[1]
     sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)
-    scenario = load_scenario(repo / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
+    scenario = simulate.load_scenario(repo / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
     out = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx))
     ctx.store.set_ref("trajectory/demo-spot-run", out.trajectory)
 

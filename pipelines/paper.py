@@ -88,7 +88,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
-from nsim.crowd.scenario import load_scenario  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
 from nsim.stages import (  # noqa: E402
     capture,
@@ -283,7 +282,7 @@ def run_paper(workspace: Path, size: str, seed: int, device: str, out_dir: Path 
 def simulate_spot_run(ctx: RunContext, size: str) -> str:
     """The Spot run (configs/scenarios/spot_run.json in robot-lab); its trajectory id."""
     sim_cfg = cfg_of(simulate.Config, "simulate", size, "simulate")
-    scenario = load_scenario(REPO / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
+    scenario = simulate.load_scenario(REPO / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
     traj = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx)).trajectory
     ctx.store.set_ref("trajectory/paper-spot-run", traj)
     return traj

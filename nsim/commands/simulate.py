@@ -72,18 +72,19 @@ def command(
     cfg = resolve_config(simulate.Config, "simulate", preset, config_file, overrides)
     ctx = run_context(click_ctx, force)
     if scenario_file is not None:
-        from nsim.crowd.scenario import load_scenario
-
-        sc = load_scenario(scenario_file, store=ctx.store)
+        sc = simulate.load_scenario(scenario_file, store=ctx.store)
         out = simulate.run(simulate.Inputs(sc), cfg, ctx)
         report_artifact(ctx, out.trajectory, out.cache_hit, tag)
         return
-    spec, scenario_path = simulate.load_sweep(sweep_file)
+    from nsim.crowd.run_output import sweep_table_markdown
+    from nsim.crowd.sweep import load_sweep
+
+    spec, scenario_path = load_sweep(sweep_file)
     rows = simulate.run_sweep(spec, scenario_path, cfg, ctx, engine=engine, address=address, workers=workers)
     if tag:
         for k, r in enumerate(rows):
             ctx.store.set_ref(f"{tag}/{k}", r["trajectory"])
-    table = simulate.sweep_table_markdown(rows)
+    table = sweep_table_markdown(rows)
     click.echo(table, nl=False)
     cached = sum(r["cache_hit"] for r in rows)
     click.echo(f"sweep: {len(rows)} trajectories ({cached} cached)", err=True)

@@ -1,5 +1,9 @@
-"""What a simulated run leaves behind: its HuNavSim metrics record, the trajectory files, a top-down
-picture and a video (``nsim simulate``'s artifact; the stage reads inputs, runs, and calls these).
+"""What a simulated run leaves behind: its metrics record, the trajectory files, a top-down
+picture and a video (``nsim simulate``'s artifact; the stage reads inputs, runs, and calls these),
+and a sweep's summary table.
+
+``robot_goal_m(sc)``: the robot's goal for the metrics; ``run_metrics(sc, sim, forces)``: metrics.json's
+content; ``sweep_table_markdown(rows)``: the sweep's table, every metric of every cell.
 
 ``write_trajectory(out_dir, sc, sim, metrics, cfg)``: ``trajectory.npz`` (byte-identical across runs),
 TUM files of the robot and each human, ``scenario.json``, ``occupancy.json``, ``metrics.json``,
@@ -9,6 +13,7 @@ TUM files of the robot and each human, ``scenario.json``, ``occupancy.json``, ``
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -30,28 +35,55 @@ BEHAVIOUR_COLOURS = {
 }
 ROBOT_COLOUR = (0.10, 0.10, 0.10)
 
-
-
 SUMMARY_METRICS = (
+    "completed",
+    "time_to_reach_goal_s",
     "minimum_distance_to_people_m",
     "intimate_space_intrusions_pct",
     "personal_space_intrusions_pct",
     "social_work_integral",
-    "avg_pedestrian_speed_mps",
+    "avg_pedestrian_velocity_mps",
 )
+"""The metrics copied into the artifact's summary (all of them are in metrics.json)."""
 
 
-def _finite_or_none(v: float) -> float | None:
+def robot_goal_m(sc) -> np.ndarray | None:
+    """Where the scenario sends the robot: its last waypoint, or its last pose's position for a
+    timed trajectory; None for a waypoint loop (no goal). ``(2,)``."""
+    traj = sc.data["robot"]["trajectory"]
+    if "waypoints_m" in traj:
+        return None if traj.get("loop", False) else np.array(traj["waypoints_m"][-1], dtype=np.float64)
+    return np.array(traj["poses"][-1]["position_m"][:2], dtype=np.float64)
+
+
+def _json_value(v: Any) -> Any:
+    """A metric for JSON: bools and counts as they are, non-finite floats (undefined) as null."""
+    if v is None or isinstance(v, (bool, np.bool_)):
+        return None if v is None else bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
     return float(v) if math.isfinite(v) else None
 
 
-def run_metrics(sc, sim, m) -> dict[str, Any]:
-    """metrics.json: the HuNavSim metrics (non-finite -> null) and the run's size."""
-    hunav = {k: _finite_or_none(v) for k, v in m.as_dict().items()}
-    if sc.data["robot"]["trajectory"].get("loop", False):
-        hunav["time_to_goal_s"] = None  # a looping robot has no goal
+def _json_metrics(m) -> dict[str, Any]:
+    return {k: _json_value(v) for k, v in m.as_dict().items()}
+
+
+def run_metrics(sc, sim, forces) -> dict[str, Any]:
+    """metrics.json: the run's metrics (``nsim.crowd.metrics``; undefined -> null), the robot's goal
+    from the scenario (``robot_goal_m``), all people (``hunav``) and, as HuNavSim's evaluator
+    also reports, the people of each behaviour alone (``hunav_by_behaviour``), and the run's size.
+
+    forces: the simulation's ``ForceParams`` (for nsim's own force sums).
+    """
+    from nsim.crowd.metrics import crowd_metrics_breakdown
+
+    everyone, by_behaviour = crowd_metrics_breakdown(
+        sim.crowd, walls_m=sim.walls_m, forces=forces, robot_goal_m=robot_goal_m(sc)
+    )
     return {
-        "hunav": hunav,
+        "hunav": _json_metrics(everyone),
+        "hunav_by_behaviour": {name: _json_metrics(m) for name, m in by_behaviour.items()},
         "run": {
             "scenario": sc.name,
             "humans": len(sc.humans),
@@ -63,12 +95,35 @@ def run_metrics(sc, sim, m) -> dict[str, Any]:
     }
 
 
+def sweep_table_markdown(rows: list[dict[str, Any]]) -> str:
+    """The summary table of a sweep, as Markdown: one row per cell (``simulate.run_sweep_item``'s
+    rows), its grid cell then every metric of metrics.json's ``hunav`` (HuNavSim's, then nsim's)."""
+    from nsim.crowd.metrics import CrowdMetrics
+
+    keys = [f.name for f in dataclasses.fields(CrowdMetrics)]
+    head = ["seed", "extra", "behaviours", "humans", "trajectory", *keys]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+
+    def cell(v: Any) -> str:
+        if v is None:
+            return "n/a"
+        if isinstance(v, bool):
+            return "yes" if v else "no"
+        return str(v) if isinstance(v, int) else format(v, ".4g")
+
+    for r in rows:
+        m, g = r["metrics"], r["grid"]
+        grid = [str(g["seed"]), str(g["extra_people"]), ",".join(g["behaviours"]), str(r["humans"])]
+        lines.append("| " + " | ".join([*grid, r["trajectory"][:12], *(cell(m[k]) for k in keys)]) + " |")
+    return "\n".join(lines) + "\n"
+
+
 # ----------------------------------------------------------------------------------------------
 # Writing
 
 
 def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg) -> None:
-    from nsim.crowd.scenario import yaw_poses_se3
+    from nsim.crowd.paths import yaw_poses_se3
     from nsim.io.tum import Trajectory, write_tum
 
     crowd = sim.crowd
@@ -137,7 +192,7 @@ def write_topdown(path: Path, sc, sim, metrics: dict[str, Any]) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle, Polygon
 
-    from nsim.crowd.metrics import robot_distance_m
+    from nsim.crowd.metrics import people_gap_m
 
     crowd = sim.crowd
     lo, hi = _map_bounds(sc, sim)
@@ -166,7 +221,7 @@ def write_topdown(path: Path, sc, sim, metrics: dict[str, Any]) -> None:
         if len(sc.humans) <= 30:
             ax.annotate(h.id, xy[0], fontsize=7, xytext=(3, 3), textcoords="offset points")
     if sc.humans:
-        k, i = np.unravel_index(np.argmin(robot_distance_m(crowd)), (len(sim.time_s), len(sc.humans)))
+        k, i = np.unravel_index(np.argmin(people_gap_m(crowd)), (len(sim.time_s), len(sc.humans)))
         pose = sim.robot_pose_se3[k]
         outline = capsule_outline(
             pose[:2, 3], float(np.arctan2(pose[1, 0], pose[0, 0])), sc.robot.half_length_m, sc.robot.radius_m

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,3 +28,8 @@ class RobotState:
         u = np.array([math.cos(self.heading_rad), math.sin(self.heading_rad)])
         c = np.asarray(self.position_m, dtype=np.float64)
         return np.stack([c - self.half_length_m * u, c + self.half_length_m * u])
+
+    def advanced(self, dt_s: float) -> RobotState:
+        """The robot ``dt_s`` later at constant velocity and heading (its pose at the end of a step)."""
+        moved = np.asarray(self.position_m, dtype=np.float64) + dt_s * np.asarray(self.velocity_mps, dtype=np.float64)
+        return replace(self, position_m=moved)

@@ -18,7 +18,10 @@ image's lower-left pixel is cell ``[0, 0]``): 254 free, 0 occupied, 205 unknown,
 ``map_server`` reads pixel ``v`` as the occupancy probability ``p = (255 - v) / 255`` (``v / 255``
 with ``negate: 1``): occupied when ``p > occupied_thresh``, free when ``p < free_thresh``, unknown
 in between (205 gives 0.19608). ``read_nav2_map`` applies the same rules, so it also reads a
-trinary map saved by nav2 (PGM or PNG image). Other modes and a non-zero yaw are refused.
+trinary map saved by nav2 (PGM or PNG image; the image path relative to the YAML's folder, never
+outside it); a scenario names one as its own map (``scene: {nav2_map: map.yaml}``, traced by the
+simulate stage). Other modes and a non-zero yaw are refused; every error is one line naming the
+file and the field (``map.yaml: resolution: expected > 0 (metres per cell), got -0.05``).
 """
 
 from __future__ import annotations
@@ -139,13 +142,14 @@ def _read_pgm(path: Path) -> np.ndarray:
 
 def read_nav2_map(yaml_path: str | os.PathLike) -> Nav2Map:
     """Read a trinary map_server map (``map.yaml`` and the image it names, inside its folder)."""
-    import yaml
+    from nsim.config import parse_yaml
 
     yaml_path = Path(yaml_path)
     try:
-        doc = yaml.safe_load(yaml_path.read_text())
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+        text = yaml_path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{yaml_path}: cannot read the map ({exc.__class__.__name__}: {exc})") from None
+    doc = parse_yaml(text, yaml_path, InputError)  # one line naming the file and line
     if not isinstance(doc, dict):
         raise InputError(f"{yaml_path}: expected a mapping")
 
@@ -154,29 +158,46 @@ def read_nav2_map(yaml_path: str | os.PathLike) -> Nav2Map:
             raise InputError(f"{yaml_path}: {name}: missing")
         return doc.get(name, default)
 
+    def number(name, default=None) -> float:
+        return as_number(name, field(name, default))
+
+    def as_number(name, value) -> float:
+        try:
+            if isinstance(value, bool):
+                raise TypeError
+            out = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"{yaml_path}: {name}: expected a number, got {value!r}") from None
+        if not np.isfinite(out):
+            raise InputError(f"{yaml_path}: {name}: expected a finite number, got {value!r}")
+        return out
+
     image = field("image")
     mode = field("mode", "trinary")
     if mode != "trinary":
         raise InputError(f"{yaml_path}: mode: only trinary maps are read, got {mode!r}")
-    try:
-        resolution = float(field("resolution"))
-        origin = [float(v) for v in field("origin")]
-        negate = int(field("negate", 0))
-        occ_t, free_t = float(field("occupied_thresh", OCCUPIED_THRESH)), float(field("free_thresh", FREE_THRESH))
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{yaml_path}: malformed map ({exc})") from None
-    if not (np.isfinite(resolution) and resolution > 0.0):
-        raise InputError(f"{yaml_path}: resolution: expected > 0, got {resolution}")
-    if len(origin) != 3 or not np.all(np.isfinite(origin)) or origin[2] != 0.0:
+    resolution = number("resolution")
+    if resolution <= 0.0:
+        raise InputError(f"{yaml_path}: resolution: expected > 0 (metres per cell), got {resolution:g}")
+    origin = field("origin")
+    if not isinstance(origin, list) or len(origin) != 3:
+        raise InputError(f"{yaml_path}: origin: expected [x, y, 0.0] (yaw 0), got {origin!r}")
+    origin = [as_number(f"origin[{k}]", v) for k, v in enumerate(origin)]
+    if origin[2] != 0.0:
         raise InputError(f"{yaml_path}: origin: expected [x, y, 0.0] (yaw 0), got {origin}")
-    if negate not in (0, 1) or not 0.0 <= free_t <= occ_t <= 1.0:
-        raise InputError(f"{yaml_path}: expected negate 0 or 1 and 0 <= free_thresh <= occupied_thresh <= 1")
+    negate = field("negate", 0)
+    if negate not in (0, 1) or isinstance(negate, bool):
+        raise InputError(f"{yaml_path}: negate: expected 0 or 1, got {negate!r}")
+    occ_t, free_t = number("occupied_thresh", OCCUPIED_THRESH), number("free_thresh", FREE_THRESH)
+    if not 0.0 <= free_t <= occ_t <= 1.0:
+        raise InputError(f"{yaml_path}: free_thresh, occupied_thresh: expected 0 <= free_thresh <= occupied_thresh <= 1, "
+                         f"got {free_t:g}, {occ_t:g}")
     rel = Path(str(image))
-    if not isinstance(image, str) or rel.is_absolute() or ".." in rel.parts:
+    if not isinstance(image, str) or not image or rel.is_absolute() or ".." in rel.parts:
         raise InputError(f"{yaml_path}: image: expected a path inside the map's folder, got {image!r}")
     img_path = yaml_path.parent / rel
     if not img_path.is_file():
-        raise InputError(f"{yaml_path}: image {image!r} not found")
+        raise InputError(f"{yaml_path}: image: {image!r} not found (no file {img_path})")
     if img_path.suffix.lower() == ".pgm":
         img = _read_pgm(img_path)
     else:

@@ -2,8 +2,10 @@
 
 Input: a scenario (``nsim.crowd.scenario``; a file, not an artifact: its canonical resolved
 content is stored in the artifact and its digest enters the action key), plus the scene
-checkpoint it names, if any (an input artifact, so lineage reaches it). The run's random stream
-is seeded from both the scenario's ``seed`` and the run's ``--seed``.
+checkpoint it names, if any (an input artifact, so lineage reaches it). ``load_scenario`` reads
+the file and resolves its scene here (``resolve_scene``: a checkpoint through the workspace, the
+test room through ``nsim.synth``, a nav2 map through ``nsim.io.nav2``); ``nsim.crowd`` gets arrays.
+The run's random stream is seeded from both the scenario's ``seed`` and the run's ``--seed``.
 
 Artifact layout (``T`` ticks at ``t_k = k dt_s``, ``N`` humans)::
 
@@ -13,8 +15,9 @@ Artifact layout (``T`` ticks at ``t_k = k dt_s``, ``N`` humans)::
     humans/<id>.tum   each human's root at every tick: (x, y, 0) on the floor, rotated about +z by
                       its heading (x forward). The root is on the floor, not at the pelvis: the
                       human model places the pelvis at its own height above it.
-    metrics.json      HuNavSim metrics (``nsim.crowd.metrics.crowd_metrics``; null where undefined,
-                      e.g. time to goal for a looping robot) and the run's size
+    metrics.json      HuNavSim's evaluator metrics and nsim's (``nsim.crowd.run_output.run_metrics``),
+                      for everyone and per behaviour; null where undefined, e.g. time to goal for
+                      a looping robot; and the run's size
     scenario.json     the canonical resolved scenario (``load_scenario`` reads it back unchanged)
     occupancy.json    the 2D obstacle map used (the capture's layout)
     topdown.png       the run from above: obstacles, the robot's path, each human's path
@@ -37,14 +40,30 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
-from nsim.crowd.behaviours import BEHAVIOUR_NAMES, BehaviourParams
+from nsim.crowd.behaviours import BehaviourParams
+from nsim.crowd.driver import simulate, spawn_extra_humans
 from nsim.crowd.run_output import SUMMARY_METRICS, run_metrics, write_trajectory
+from nsim.crowd.scenario import (
+    Scenario,
+    ScenarioSpec,
+    SceneMap,
+    parse_scenario,
+    polygon_map,
+    polygon_scene,
+    read_occupancy,
+    read_scenario,
+    resolve_scenario,
+)
 from nsim.crowd.social_force import ForceParams
+from nsim.crowd.sweep import SweepSpec
+from nsim.errors import InputError, NsimError
 
 STAGE = "simulate"
-VERSION = 2  # 2: run.mp4 in H.264 (was MPEG-4 Part 2), frames under a label strip
+VERSION = 3  # 2: run.mp4 in H.264 (was MPEG-4 Part 2), frames under a label strip; 3: HuNavSim metrics
 
 @dataclasses.dataclass(frozen=True)
 class Config:
@@ -61,9 +80,9 @@ class Config:
 
 @dataclasses.dataclass(frozen=True)
 class Inputs:
-    """A validated scenario (``nsim.crowd.scenario.load_scenario``)."""
+    """A validated scenario on its resolved map (``load_scenario``)."""
 
-    scenario: Any
+    scenario: Scenario
 
     def ids(self) -> dict[str, str]:
         return {"scene": self.scenario.scene_id} if self.scenario.scene_id is not None else {}
@@ -73,6 +92,80 @@ class Inputs:
 class Outputs:
     trajectory: str
     cache_hit: bool = False
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading the scenario: its scene reference resolved to arrays
+
+
+def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
+    """The map of the scenario's ``scene`` entry: the test room, a scene checkpoint's ``occupancy.json``
+    (``store``: the workspace that resolves its ref), the scenario's own polygons or a nav2 map."""
+    scene = spec.scene
+    if "room" in scene:
+        from nsim.synth.room import make_room, occupancy_polygons
+
+        room = make_room(scene["room"], scene["room_seed"])
+        return SceneMap(scene, tuple(occupancy_polygons(room)), walk_loop_xy_m=room.walk_loop_xy_m)
+    if "polygons" in scene:
+        return polygon_map(scene, spec.error)
+    if "nav2_map" in scene:
+        return polygon_map(nav2_scene(spec), spec.error)
+    where, ref = ("scene", "checkpoint"), scene["checkpoint"]
+    if store is None:
+        raise spec.error(where, "a scene checkpoint needs a workspace to resolve it")
+    try:
+        art_id = store.resolve(ref, kind="scene-checkpoint")
+    except NsimError as exc:
+        raise spec.error(where, str(exc)) from None
+    art = store.get(art_id).path
+    occ = art / "occupancy.json"
+    if not occ.is_file() and (art / "scene.json").is_file():
+        why = json.loads((art / "scene.json").read_text()).get("walkable_map_why_not")
+        if why:
+            raise spec.error(where, f"scene-checkpoint {art_id[:12]} has no walkable map: {why}")
+    return SceneMap({"checkpoint": art_id}, *read_occupancy(occ, f"scene.checkpoint {ref!r}", spec.error))
+
+
+def nav2_scene(spec: ScenarioSpec) -> dict[str, Any]:
+    """A ``{"nav2_map": PATH}`` scene as the ``{"polygons", "holes"}`` entry the scenario stores.
+
+    The map (``nsim.io.nav2.read_nav2_map``) is traced as nsim traces its own obstacle maps
+    (``nsim.rendering.occupancy.regions_from_mask``): occupied cells, unknown ones unless
+    ``unknown: free``, and a one-cell border around the raster (nobody walks off the map) are obstacles.
+    """
+    from nsim.io.nav2 import CELL_OCCUPIED, CELL_UNKNOWN, read_nav2_map
+    from nsim.rendering.occupancy import regions_from_mask
+
+    scene, where = spec.scene, ("scene", "nav2_map")
+    path = spec.file(where, scene["nav2_map"], "a nav2 map")
+    try:
+        grid = read_nav2_map(path)
+    except InputError as exc:
+        raise spec.error(where, str(exc)) from None
+    blocked = grid.cells == CELL_OCCUPIED
+    if scene["unknown"] == "obstacle":
+        blocked |= grid.cells == CELL_UNKNOWN
+    res = grid.resolution_m
+    origin = (grid.origin_xy_m[0] - res, grid.origin_xy_m[1] - res)
+    regions = regions_from_mask(np.pad(blocked, 1, constant_values=True), origin, res)
+    return polygon_scene([r.outer_m for r in regions], [r.holes_m for r in regions])
+
+
+def load_scenario(path: str | Path, store=None) -> Scenario:
+    """Read, validate and resolve a scenario file (``store``: the workspace, for a scene checkpoint)."""
+    spec = read_scenario(path)
+    return resolve_scenario(spec, resolve_scene(spec, store))
+
+
+def scenario_from_data(data: Any, *, source: str, base_dir: Path | None = None, store=None) -> Scenario:
+    """Validate and resolve plain scenario data (e.g. an artifact's ``scenario.json``); errors name ``source``."""
+    spec = parse_scenario(data, source=source, base_dir=base_dir)
+    return resolve_scenario(spec, resolve_scene(spec, store))
+
+
+# ----------------------------------------------------------------------------------------------
+# Running
 
 
 def effective_times(sc, cfg: Config) -> tuple[float, float]:
@@ -94,9 +187,6 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
-    from nsim.crowd.metrics import crowd_metrics
-    from nsim.crowd.scenario import simulate
-
     store = ctx.store
     sc = inputs.scenario
     key = action_key(inputs, cfg, ctx)
@@ -105,7 +195,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     dt_s, duration_s = effective_times(sc, cfg)
     sim = simulate(sc, cfg.forces, cfg.behaviours, dt_s, duration_s, rollout_seed(ctx, sc))
-    metrics = run_metrics(sc, sim, crowd_metrics(sim.crowd, walls_m=sim.walls_m, forces=cfg.forces))
+    metrics = run_metrics(sc, sim, cfg.forces)
     with store.publish(
         kind="trajectory",
         stage=STAGE,
@@ -131,53 +221,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
 
 # ----------------------------------------------------------------------------------------------
-# Sweeps
-
-
-@dataclasses.dataclass(frozen=True)
-class SweepSpec:
-    """A sweep file (YAML): a grid of seeds x crowd sizes x behaviour sets over one base scenario.
-
-    scenario: the base scenario file, relative to the sweep file. seeds: scenario seeds.
-    crowd_sizes: how many extra people to spawn in free space (0 = the scenario as it is).
-    behaviours: behaviour sets the extra people's behaviours are drawn from; each a name or a list
-    of names. keep_scenario_humans: false drops the scenario's own people.
-    """
-
-    scenario: str = param(help="base scenario file, relative to the sweep file")
-    seeds: tuple[int, ...] = param((0,))
-    crowd_sizes: tuple[int, ...] = param((0,))
-    behaviours: tuple[str | tuple[str, ...], ...] = param(("regular",))
-    keep_scenario_humans: bool = True
-
-
-def load_sweep(path: str | Path) -> tuple[SweepSpec, Path]:
-    """The sweep file, strictly checked (errors name the file and the key)."""
-    from nsim.config import read_yaml
-    from nsim.errors import ConfigError, InputError
-
-    path = Path(path)
-    data = read_yaml(path, what="sweep")
-    try:
-        spec = from_dict(SweepSpec, data)
-    except ConfigError as exc:
-        raise InputError(f"{path}: {exc}") from None
-    for name, values in (("seeds", spec.seeds), ("crowd_sizes", spec.crowd_sizes)):
-        if not values:
-            raise InputError(f"{path}: {name}: expected at least one value")
-        for k, v in enumerate(values):
-            if v < 0:
-                raise InputError(f"{path}: {name}[{k}]: expected int >= 0, got {v}")
-    if not spec.behaviours:
-        raise InputError(f"{path}: behaviours: expected at least one behaviour set")
-    for k, b in enumerate(spec.behaviours):
-        names = (b,) if isinstance(b, str) else b
-        for name in names or ("[]",):
-            if name not in BEHAVIOUR_NAMES:
-                raise InputError(
-                    f"{path}: behaviours[{k}]: {name!r} is not one of {', '.join(BEHAVIOUR_NAMES)}"
-                )
-    return spec, (path.parent / spec.scenario)
+# Sweeps (the file and its table: ``nsim.crowd.sweep``)
 
 
 def sweep_items(spec: SweepSpec, scenario_path: Path, cfg: Config, ctx: RunContext) -> list[dict[str, Any]]:
@@ -186,8 +230,6 @@ def sweep_items(spec: SweepSpec, scenario_path: Path, cfg: Config, ctx: RunConte
     The scenarios are built and validated here, in the driver, so a bad sweep fails before any
     work is sent out; workers only re-read the canonical content.
     """
-    from nsim.crowd.scenario import load_scenario, scenario_from_data, spawn_extra_humans
-
     base = load_scenario(scenario_path, store=ctx.store)
     items = []
     for seed in spec.seeds:
@@ -200,9 +242,10 @@ def sweep_items(spec: SweepSpec, scenario_path: Path, cfg: Config, ctx: RunConte
                     data["humans"] = []
                 # with no extra people the behaviour set plays no part: those cells share one scenario
                 data["name"] = f"{base.name[:40]}.s{seed}.n{size}" + (f".b{b_idx}" if size else "")
-                sc = scenario_from_data(data, source=f"{scenario_path} (seed {seed})", store=ctx.store)
+                cell = parse_scenario(data, source=f"{scenario_path} (seed {seed})")
+                sc = resolve_scenario(cell, base.scene_map)
                 rng = ctx.rng(f"simulate.sweep.spawn.{seed}.{size}.{'+'.join(names)}")
-                sc = spawn_extra_humans(sc, size, names, rng, store=ctx.store)
+                sc = spawn_extra_humans(sc, size, names, rng)
                 items.append(
                     {
                         "workspace": str(ctx.store.root),
@@ -219,7 +262,6 @@ def sweep_items(spec: SweepSpec, scenario_path: Path, cfg: Config, ctx: RunConte
 
 def run_sweep_item(item: dict[str, Any]) -> dict[str, Any]:
     """Run one sweep cell in this process (any worker): returns the artifact id, its metrics and the grid cell."""
-    from nsim.crowd.scenario import scenario_from_data
     from nsim.workspace.store import Store
 
     store = Store(item["workspace"])
@@ -236,48 +278,6 @@ def run_sweep_item(item: dict[str, Any]) -> dict[str, Any]:
         "cache_hit": out.cache_hit,
         "metrics": metrics["hunav"],
     }
-
-
-def sweep_table_markdown(rows: list[dict[str, Any]]) -> str:
-    """The summary table of a sweep (one row per cell), as Markdown."""
-    head = [
-        "seed",
-        "extra",
-        "behaviours",
-        "humans",
-        "trajectory",
-        "min dist (m)",
-        "intimate %",
-        "personal %",
-        "social work",
-        "ped speed (m/s)",
-    ]
-    lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
-
-    def f(v, spec):
-        return "n/a" if v is None else format(v, spec)
-
-    for r in rows:
-        m, g = r["metrics"], r["grid"]
-        lines.append(
-            "| "
-            + " | ".join(
-                [
-                    str(g["seed"]),
-                    str(g["extra_people"]),
-                    ",".join(g["behaviours"]),
-                    str(r["humans"]),
-                    r["trajectory"][:12],
-                    f(m["minimum_distance_to_people_m"], ".2f"),
-                    f(m["intimate_space_intrusions_pct"], ".1f"),
-                    f(m["personal_space_intrusions_pct"], ".1f"),
-                    f(m["social_work_integral"], ".1f"),
-                    f(m["avg_pedestrian_speed_mps"], ".2f"),
-                ]
-            )
-            + " |"
-        )
-    return "\n".join(lines) + "\n"
 
 
 def run_sweep(
@@ -298,8 +298,6 @@ def run_sweep(
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    from nsim.crowd.scenario import scenario_from_data
-
     art = ctx.store.get(manifest["id"])
     sc = scenario_from_data(
         json.loads(art.file("scenario.json").read_text()),

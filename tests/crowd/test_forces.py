@@ -125,25 +125,33 @@ def test_obstacle_repulsion_matches_loop_twin():
 
 def test_robot_repulsion_by_law():
     robot = RobotState(np.array([0.0, 0.0]), np.zeros(2), 0.0, radius_m=0.3, half_length_m=0.4)
-    pos = np.array([[1.5, 0.0], [0.0, 1.5]])  # ahead of the robot's nose, beside its flank
-    heading = np.array([math.pi, -math.pi / 2])  # both facing the robot
+    pos = np.array([[1.5, 0.0], [0.0, 1.5], [0.0, 1.5]])  # ahead of the robot's nose, beside its flank
+    heading = np.array([math.pi, -math.pi / 2, -math.pi / 2])  # all facing the robot
     view = robot_view(pos, robot)
-    np.testing.assert_allclose(view.closest_m, [[0.4, 0.0], [0.0, 0.0]])
-    np.testing.assert_allclose(view.surface_distance_m, [1.1 - 0.3, 1.5 - 0.3])
-    radius = np.array([0.25, 0.25])
-    law = np.array([beh.ROBOT_AS_AGENT, beh.ROBOT_AS_OBSTACLE])
-    f = robot_repulsion(pos, np.zeros((2, 2)), heading, radius, robot, view, law, P)
+    np.testing.assert_allclose(view.closest_m, [[0.4, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    np.testing.assert_allclose(view.surface_distance_m, [1.1 - 0.3, 1.5 - 0.3, 1.5 - 0.3])
+    np.testing.assert_allclose(view.centre_m, [0.0, 0.0])
+    np.testing.assert_allclose(view.centre_distance_m, [1.5, 1.5, 1.5])
+    radius = np.full(3, 0.25)
+    law = np.array([beh.ROBOT_AS_AGENT, beh.ROBOT_AS_OBSTACLE, beh.ROBOT_IGNORED])
+    f = robot_repulsion(pos, np.zeros((3, 2)), heading, radius, robot, view, law, P)
     agent_mag = 2.0 * math.exp((0.55 - 1.1) / 0.5)  # facing it: w = 1
     wall_mag = P.obstacle_strength_mps2 * math.exp((0.55 - 1.5) / P.obstacle_range_m)
-    np.testing.assert_allclose(f, [[agent_mag, 0.0], [0.0, wall_mag]], atol=1e-12)
+    np.testing.assert_allclose(f, [[agent_mag, 0.0], [0.0, wall_mag], [0.0, 0.0]], atol=1e-12)
 
 
 def test_scared_repulsion_hand_computed():
     robot = RobotState(np.array([0.0, 0.0]), np.zeros(2), 0.0, radius_m=0.3)
     pos = np.array([[2.0, 0.0], [0.0, 2.0]])
-    params = BehaviourParams(scared_strength_mps2=4.0, scared_range_m=1.0)  # not the defaults
-    f = beh.scared_repulsion(pos, robot_view(pos, robot), np.array([True, False]), params)
+    radius = np.full(2, 0.25)
+    # nsim: A exp(-d / B), d to the robot's surface (A, B not the profile's)
+    params = BehaviourParams(profile="nsim", scared_strength_mps2=4.0, scared_range_m=1.0)
+    f = beh.scared_repulsion(pos, radius, robot_view(pos, robot), np.array([True, False]), params)
     np.testing.assert_allclose(f, [[4.0 * math.exp(-1.7), 0.0], [0.0, 0.0]], atol=1e-12)
+    # hunavsim: A B / d, d from the robot's centre less the human's radius
+    params = BehaviourParams(scared_strength_mps2=4.0, scared_range_m=1.0)
+    f = beh.scared_repulsion(pos, radius, robot_view(pos, robot), np.array([True, False]), params)
+    np.testing.assert_allclose(f, [[4.0 / 1.75, 0.0], [0.0, 0.0]], atol=1e-12)
 
 
 def test_group_coherence_hand_computed():

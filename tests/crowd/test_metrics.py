@@ -1,4 +1,5 @@
-"""HuNavSim metrics on trajectories with known answers."""
+"""Crowd metrics on trajectories with known answers: distances, bands, path and nsim's force sums
+(HuNavSim's hand cases: ``test_hunav_metrics.py``)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,13 @@ import pytest
 from nsim.crowd import CrowdTrajectory, ForceParams
 from nsim.crowd.metrics import (
     crowd_metrics,
-    cumulative_heading_change_rad,
+    cumulative_heading_changes_rad,
     path_irregularity_rad_per_m,
+    people_gap_m,
     robot_distance_m,
     robot_social_forces,
     space_intrusions_pct,
-    time_to_goal_s,
+    time_to_reach_goal_s,
 )
 from nsim.crowd.social_force import pair_repulsion
 
@@ -57,29 +59,34 @@ def straight_pass(lateral_m=2.0):
 def test_distances_and_intrusions_of_a_straight_pass():
     tr = straight_pass(2.0)
     m = crowd_metrics(tr, robot_goal_m=[10.0, 0.0])
-    assert m.minimum_distance_to_people_m == pytest.approx(2.0 - 0.3)
-    assert m.maximum_distance_to_people_m == pytest.approx(math.hypot(10.0, 2.0) - 0.3)
+    # HuNavSim: the gap between the bodies, centre distance - 0.3 (robot) - 0.25 (human)
+    assert m.minimum_distance_to_people_m == pytest.approx(2.0 - 0.3 - 0.25)
+    assert m.maximum_distance_to_people_m == pytest.approx(math.hypot(10.0, 2.0) - 0.3)  # robot radius only
     x = tr.robot_position_m[:, 0]
     d = np.hypot(x, 2.0) - 0.3
     assert m.avg_distance_to_closest_person_m == pytest.approx(np.mean(d - 0.25))
-    # social band [1.2, 3.6): |x| < sqrt(3.9^2 - 4); no intimate / personal intrusion (min 1.7 m)
-    expected = 100.0 * np.mean(np.abs(x) < math.sqrt(3.9**2 - 4.0))
+    # social band [1.2, 3.6) of the gap: |x| < sqrt(4.15^2 - 4); never personal (gap >= 1.45 m)
+    expected = 100.0 * np.mean(np.abs(x) < math.sqrt(4.15**2 - 4.0))
     assert m.social_space_intrusions_pct == pytest.approx(expected)
-    assert abs(expected - 100.0 * 2 * math.sqrt(3.9**2 - 4.0) / 20.0) < 1.0
+    assert abs(expected - 100.0 * 2 * math.sqrt(4.15**2 - 4.0) / 20.0) < 1.0
     assert m.intimate_space_intrusions_pct == 0.0 and m.personal_space_intrusions_pct == 0.0
     assert m.path_length_m == pytest.approx(20.0)
-    assert m.time_to_goal_s == pytest.approx(20.0 - 0.3, abs=DT)
-    assert m.path_irregularity_rad_per_m == 0.0 and m.cumulative_heading_change_rad == 0.0
+    # HuNavSim's goal radius, 0.2 m: first inside at x > 9.8
+    assert m.time_to_reach_goal_s == pytest.approx(20.0 - 0.2, abs=DT)
+    assert m.completed is True and m.final_distance_to_target_m == pytest.approx(0.0, abs=1e-9)
+    assert m.path_irregularity_rad_per_m == 0.0 and m.cumulative_heading_changes_rad == 0.0
 
 
 def test_close_pass_counts_intimate_and_personal_ticks():
-    tr = straight_pass(0.6)  # closest: 0.3 m from the robot's surface
-    closest = robot_distance_m(tr)[:, 0]
+    tr = straight_pass(0.7)  # closest: 0.7 - 0.3 - 0.25 = 0.15 m between the bodies
+    gap = np.maximum(people_gap_m(tr)[:, 0], 0.0)
+    np.testing.assert_allclose(gap.min(), 0.15, atol=1e-12)
     m = crowd_metrics(tr)
-    assert m.intimate_space_intrusions_pct == pytest.approx(100.0 * np.mean(closest < 0.45))
-    assert m.personal_space_intrusions_pct == pytest.approx(
-        100.0 * np.mean((closest >= 0.45) & (closest < 1.2))
-    )
+    assert m.intimate_space_intrusions_pct == pytest.approx(100.0 * np.mean(gap < 0.45))
+    assert m.personal_space_intrusions_pct == pytest.approx(100.0 * np.mean((gap >= 0.45) & (gap < 1.2)))
+    # the gap is < 0.45 while the centres are < 1.0 m apart: |x| < sqrt(1 - 0.49)
+    x = tr.robot_position_m[:, 0]
+    assert m.intimate_space_intrusions_pct == pytest.approx(100.0 * np.mean(np.abs(x) < math.sqrt(0.51)))
     assert m.intimate_space_intrusions_pct > 0
 
 
@@ -95,8 +102,12 @@ def test_space_intrusions_bands():
     assert space_intrusions_pct(closest, 1.2, 3.6) == pytest.approx(100 * 2 / 8)
 
 
-def test_time_to_goal_never_reached_is_nan():
-    assert math.isnan(time_to_goal_s(np.arange(3.0), np.zeros((3, 2)), np.array([5.0, 0.0]), 0.3))
+def test_time_to_goal_never_reached_is_the_whole_run():
+    # HuNavSim reports the whole recording for a robot that does not get there
+    assert time_to_reach_goal_s(np.arange(3.0), np.zeros((3, 2)), np.array([5.0, 0.0]), 0.3) == 2.0
+    path = np.array([[0.0, 0.0], [4.5, 0.0], [4.9, 0.0]])
+    assert time_to_reach_goal_s(np.arange(3.0), path, np.array([5.0, 0.0]), 0.3) == 2.0
+    assert time_to_reach_goal_s(np.arange(3.0), path, np.array([5.0, 0.0]), 0.6) == 1.0
 
 
 def test_path_irregularity():
@@ -105,7 +116,7 @@ def test_path_irregularity():
     steps = np.stack([np.cos(heading), np.sin(heading)], -1) * math.sqrt(2)
     pos = np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
     heading = np.concatenate([[math.pi / 4], heading])
-    turning = cumulative_heading_change_rad(heading)
+    turning = cumulative_heading_changes_rad(heading)
     assert turning == pytest.approx(9 * math.pi / 2)
     goal = pos[-1]
     needed = math.pi / 4  # from the first heading to the goal direction (+x)
@@ -146,6 +157,13 @@ def test_wall_force_adds_to_social_work():
 def test_metrics_without_humans():
     tr = make_traj(np.column_stack([np.linspace(0, 1, 11), np.zeros(11)]), np.zeros((11, 0, 2)))
     m = crowd_metrics(tr)
-    assert m.minimum_distance_to_people_m == math.inf
+    assert m.minimum_distance_to_people_m == math.inf == m.avg_distance_to_closest_person_m
     assert m.intimate_space_intrusions_pct == m.social_space_intrusions_pct == 0.0
+    assert m.group_intimate_space_intrusions_pct == 0.0
+    assert m.robot_on_person_collision == m.person_on_robot_collision == 0
+    assert math.isnan(m.avg_pedestrian_velocity_mps) and math.isnan(m.avg_closest_pedestrian_velocity_mps)
     assert m.social_work_integral == 0.0 and m.path_length_m == pytest.approx(1.0)
+    assert m.social_force_on_robot == m.social_work == 0.0
+    # no goal: the goal metrics are undefined
+    assert m.completed is None and math.isnan(m.time_to_reach_goal_s)
+    assert math.isnan(m.minimum_distance_to_target_m) and math.isnan(m.final_distance_to_target_m)

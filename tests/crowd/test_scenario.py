@@ -1,4 +1,4 @@
-"""Scenario files: the schema (in sync with jsonschema), one-line errors, resolution, free space, robot poses."""
+"""Scenario files: the schema (validated by jsonschema), one-line errors, resolution, free space, robot poses."""
 
 from __future__ import annotations
 
@@ -7,27 +7,22 @@ import json
 import math
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
 import yaml
 
 from nsim.config import configs_dir
 from nsim.crowd.behaviours import BEHAVIOUR_NAMES
+from nsim.crowd.driver import crowd_state, spawn_extra_humans
 from nsim.crowd.neighbours import points_in_polygons, segments_intersect
-from nsim.crowd.scenario import (
-    SchemaValidator,
-    SchemaViolation,
-    clearance_m,
-    interpolate_poses,
-    leg_crossings,
-    load_scenario,
-    scenario_from_data,
-    scenario_schema_path,
-    spawn_extra_humans,
-    waypoint_poses,
-    yaw_of_poses,
-)
+from nsim.crowd.paths import clearance_m, leg_crossings, waypoint_poses, yaw_of_poses
+from nsim.crowd.scenario import scenario_schema_path
+from nsim.crowd.schema import SchemaValidator, SchemaViolation
+from nsim.crowd.sweep import load_sweep
 from nsim.errors import InputError, NsimError
+from nsim.geometry.transforms import interpolate_poses
+from nsim.stages.simulate import load_scenario, scenario_from_data
 from nsim.synth.room import ROOM_PRESETS
 
 SCENARIOS = sorted((configs_dir() / "scenarios").glob("*.json")) + sorted(
@@ -147,6 +142,32 @@ SCHEMA_BAD = [
         _set(("humans", 0, "appearance"), 3),
         "humans[0].appearance: expected a string or null, got 3",
     ),
+    # the scenario's own map
+    (
+        "scene-empty",
+        _set(("scene",), {}),
+        "scene: expected an object with exactly one of the keys room, checkpoint, polygons, nav2_map, got {}",
+    ),
+    (
+        "ring-too-short",
+        _set(("scene",), {"polygons": [[[0, 0], [1, 0], [0, 0]]]}),
+        "scene.polygons[0]: expected at least 4 items, got 3",
+    ),
+    (
+        "ring-point",
+        _set(("scene",), {"polygons": [[[0, 0], [1, 0], [1, 1], [0, "a"]]]}),
+        "scene.polygons[0][3][1]: expected a number, got 'a'",
+    ),
+    (
+        "polygons-unknown-key",
+        _set(("scene",), {"polygons": [[[0, 0], [1, 0], [1, 1], [0, 0]]], "hole": []}),
+        "scene.hole: unknown key (did you mean 'holes'?)",
+    ),
+    (
+        "nav2-unknown",
+        _set(("scene",), {"nav2_map": "map.yaml", "unknown": "maybe"}),
+        "scene.unknown: 'maybe' is not one of obstacle, free",
+    ),
 ]
 
 # Bad content only nsim's own checks can see (a schema cannot express them).
@@ -213,6 +234,33 @@ BEYOND_SCHEMA = [
         _set(("scene",), {"checkpoint": "scene/none"}),
         "scene.checkpoint: a scene checkpoint needs a workspace",
     ),
+    # the scenario's own map: rings closed and enclosing an area, one holes list per polygon
+    (
+        "polygon-not-closed",
+        _set(("scene",), {"polygons": [[[-1, -1], [9, -1], [9, 8], [-1, 8]]]}),
+        "scene.polygons[0]: not closed: a ring ends with its first point (-1, -1) again, got (-1, 8)",
+    ),
+    (
+        "polygon-no-area",
+        _set(("scene",), {"polygons": [[[0, 0], [1, 1], [2, 2], [0, 0]]]}),
+        "scene.polygons[0]: encloses no area",
+    ),
+    (
+        "holes-count",
+        _set(("scene",), {"polygons": [[[0, 0], [1, 0], [1, 1], [0, 0]]], "holes": []}),
+        "scene.holes: expected one list per polygon (1), got 0",
+    ),
+    (
+        "hole-not-closed",
+        _set(("scene",), {"polygons": [[[0, 0], [9, 0], [9, 9], [0, 0]]], "holes": [[[[1, 1], [2, 1], [2, 2], [1, 2]]]]}),
+        "scene.holes[0][0]: not closed",
+    ),
+    (
+        "walk-loop-on-polygons",
+        _set(("scene",), {"polygons": [[[-1, -1], [9, -1], [9, 8], [-1, 8], [-1, -1]]]}),
+        "robot.trajectory.walk_loop: the walk loop needs a test-room scene",
+    ),
+    ("nav2-missing", _set(("scene",), {"nav2_map": "maps/none.yaml"}), "scene.nav2_map: no such file"),
 ]
 
 
@@ -226,7 +274,6 @@ def write(tmp_path: Path, data, name="s.json") -> Path:
 
 
 def test_schema_is_valid_draft_2020_12_and_its_enums_match_the_code():
-    jsonschema = pytest.importorskip("jsonschema")
     schema = json.loads(scenario_schema_path().read_text())
     jsonschema.Draft202012Validator.check_schema(schema)
     assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
@@ -242,8 +289,7 @@ def _strict_json_data(data):
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
-def test_shipped_scenarios_pass_both_validators(path):
-    jsonschema = pytest.importorskip("jsonschema")
+def test_shipped_scenarios_pass_the_schema_and_load(path):
     schema = json.loads(scenario_schema_path().read_text())
     data = json.loads(path.read_text()) if path.suffix == ".json" else yaml.safe_load(path.read_text())
     assert list(jsonschema.Draft202012Validator(schema).iter_errors(data)) == []
@@ -251,8 +297,7 @@ def test_shipped_scenarios_pass_both_validators(path):
 
 
 @pytest.mark.parametrize("case,mutate,message", SCHEMA_BAD, ids=[c[0] for c in SCHEMA_BAD])
-def test_schema_errors_are_caught_by_both_validators(case, mutate, message, tmp_path):
-    jsonschema = pytest.importorskip("jsonschema")
+def test_schema_errors_are_one_line_naming_the_field(case, mutate, message, tmp_path):
     schema = json.loads(scenario_schema_path().read_text())
     data = mutated(mutate)
     assert list(jsonschema.Draft202012Validator(schema).iter_errors(_strict_json_data(data))), case
@@ -266,7 +311,6 @@ def test_schema_errors_are_caught_by_both_validators(case, mutate, message, tmp_
 
 @pytest.mark.parametrize("case,mutate,message", BEYOND_SCHEMA, ids=[c[0] for c in BEYOND_SCHEMA])
 def test_checks_beyond_the_schema(case, mutate, message, tmp_path):
-    jsonschema = pytest.importorskip("jsonschema")
     schema = json.loads(scenario_schema_path().read_text())
     data = mutated(mutate)
     # the schema accepts these: only nsim's own checks can see the problem
@@ -479,8 +523,6 @@ def test_shipped_scenarios_route_people_through_free_space(path):
 
 
 def test_shipped_sweep_files_parse():
-    from nsim.stages.simulate import load_sweep
-
     for path in sorted((configs_dir() / "scenarios" / "sweeps").glob("*.yaml")):
         spec, scenario = load_sweep(path)
         assert scenario.is_file() and spec.seeds
@@ -559,8 +601,6 @@ def test_spawn_extra_humans_in_free_space_deterministically():
 
 
 def test_crowd_state_matches_the_scenario():
-    from nsim.crowd.scenario import crowd_state
-
     sc = load_scenario(SPOT_RUN)
     st = crowd_state(sc)
     assert st.n == 5 and st.goals_m.shape == (5, 2, 2)

@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 
 from nsim.crowd.behaviours import BehaviourParams
+from nsim.crowd.driver import simulate, spawn_extra_humans
 from nsim.crowd.neighbours import points_in_polygons, segments_intersect
-from nsim.crowd.scenario import enclosed, scenario_from_data, simulate, spawn_extra_humans
+from nsim.crowd.paths import enclosed
 from nsim.crowd.social_force import ForceParams
 from nsim.errors import InputError
 from nsim.rendering.occupancy import ObstacleMap
+from nsim.stages.simulate import scenario_from_data
 from tests.crowd.test_scenario import _publish_scene, base
 
 
@@ -86,7 +88,7 @@ def test_a_start_beyond_the_walls_is_inside_an_obstacle(store, scene):
 
 def test_extra_people_are_placed_in_the_hole(store, scene):
     sc = scenario_from_data(_scenario(scene), source="s.json", store=store)
-    more = spawn_extra_humans(sc, 6, ["regular"], np.random.default_rng(0), store=store)
+    more = spawn_extra_humans(sc, 6, ["regular"], np.random.default_rng(0))
     pts = np.array([h.start_m for h in more.humans[1:]] + [w for h in more.humans[1:] for w in h.waypoints_m])
     assert len(more.humans) == 7 and not more.in_obstacle(pts).any()
     assert ((pts > 0.0) & (pts < [8.0, 7.0])).all()

@@ -267,5 +267,20 @@ def test_params_load_strictly_from_plain_data():
     assert from_dict(ForceParams, {"agent_strength_mps2": 3}).agent_strength_mps2 == 3.0
     with pytest.raises(ConfigError, match="anisotropy: expected float >= 0 and <= 1, got 1.5"):
         from_dict(ForceParams, {"anisotropy": 1.5})
-    with pytest.raises(ConfigError, match="did you mean 'detection_distance_m'"):
-        from_dict(BehaviourParams, {"detection_distance": 3.0})
+    with pytest.raises(ConfigError, match="did you mean 'scared_detection_distance_m'"):
+        from_dict(BehaviourParams, {"scared_detection_distance": 3.0})
+    assert from_dict(ForceParams, {"separation_passes": 0}).separation_passes == 0
+    with pytest.raises(ConfigError, match="separation_passes: expected int"):
+        from_dict(ForceParams, {"separation_passes": 1.5})
+
+
+def test_simulate_config_takes_a_behaviour_profile():
+    from nsim.config import ConfigError, from_dict
+    from nsim.stages.simulate import Config
+
+    assert Config().behaviours.resolved().profile == "hunavsim"
+    cfg = from_dict(Config, {"behaviours": {"profile": "nsim", "curious_speed_mps": 0.8}})
+    assert cfg.behaviours.resolved().curious_speed_mps == 0.8
+    assert cfg.behaviours.resolved().curious_stop_distance_m == 1.0  # the rest: nsim's
+    with pytest.raises(ConfigError, match="behaviours.profile: 'x' is not one of hunavsim, nsim"):
+        from_dict(Config, {"behaviours": {"profile": "x"}})

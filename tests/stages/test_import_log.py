@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from nsim.cli import main
-from nsim.crowd.scenario import yaw_poses_se3
+from nsim.crowd.paths import yaw_poses_se3
 from nsim.geometry.cameras import Camera
 from nsim.io.exr import read_depth_exr, read_points_exr
 from nsim.io.robot_log import RobotLog

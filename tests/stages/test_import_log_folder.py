@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from nsim.cli import main
-from nsim.crowd.scenario import yaw_poses_se3
+from nsim.crowd.paths import yaw_poses_se3
 from nsim.io.exr import read_exr
 from nsim.io.robot_log import RobotLog
 from nsim.io.tum import read_tum

@@ -22,7 +22,7 @@ import pytest
 import yaml
 
 from nsim.cli import main
-from nsim.crowd.scenario import yaw_poses_se3
+from nsim.crowd.paths import yaw_poses_se3
 from nsim.geometry.transforms import make_se3
 from nsim.io.exr import read_depth_exr, read_exr, read_exr_attributes, read_points_exr
 from nsim.io.images import read_image

@@ -12,8 +12,8 @@ import yaml
 
 from nsim.config import configs_dir
 from nsim.crowd import CrowdTrajectory
-from nsim.crowd.scenario import load_scenario, scenario_from_data
 from nsim.io.tum import read_tum
+from nsim.stages.simulate import load_scenario, scenario_from_data
 from nsim.workspace.store import Store
 
 SPOT_RUN = configs_dir() / "scenarios" / "spot_run.json"
@@ -71,7 +71,7 @@ def test_trajectory_files(tiny_run):
     heading = ana.poses_se3()[:, :2, 0]
     np.testing.assert_allclose(np.arctan2(heading[:, 1], heading[:, 0]), crowd.heading_rad[:, 0], atol=1e-9)
     metrics = json.loads((art.path / "metrics.json").read_text())
-    assert metrics["run"]["ticks"] == t_count and metrics["hunav"]["time_to_goal_s"] is None
+    assert metrics["run"]["ticks"] == t_count and metrics["hunav"]["time_to_reach_goal_s"] is None
     assert metrics["hunav"]["path_length_m"] == pytest.approx(4.0, abs=0.05)
     assert 0 < metrics["hunav"]["minimum_distance_to_people_m"] < 10
     stored = json.loads((art.path / "scenario.json").read_text())

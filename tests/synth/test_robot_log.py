@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from nsim.crowd.scenario import yaw_poses_se3
+from nsim.crowd.paths import yaw_poses_se3
 from nsim.errors import ConfigError, InputError
 from nsim.io.images import to_uint8
 from nsim.io.robot_log import RobotLog
