@@ -69,16 +69,13 @@ SPOT = configs_dir() / "robots" / "spot.yaml"
 
 
 def abs_rel(pred: np.ndarray, gt: np.ndarray) -> float:
-    """AbsRel of ``nsim.metrics.depth`` (its default ``DepthConfig``: ground truth within 1 mm..10 m,
-    predictions clamped into that range, so a rendered ``inf`` counts as 10 m) over the pixels whose
-    prediction is a number (NaN: no ray, or nearer than the camera's minimum depth); NaN if none counts."""
-    from nsim.metrics.depth import DepthConfig, depth_metrics, valid_depth_mask
+    """AbsRel of ``nsim.metrics.depth`` per view (``view_abs_rel``, its default ``DepthConfig``: ground truth
+    within 1 mm..10 m, predictions clamped into that range, so a rendered ``inf`` counts as 10 m) over the
+    pixels whose prediction is a number (NaN: no ray, or nearer than the camera's minimum depth); NaN if
+    none counts. The held-out scores of ``nsim train-scene`` (eval.json) are the same metric."""
+    from nsim.metrics.depth import view_abs_rel
 
-    cfg = DepthConfig()
-    scored = ~np.isnan(pred)
-    if not (scored & valid_depth_mask(gt, cfg)).any():
-        return float("nan")
-    return depth_metrics(pred, gt, cfg, scored).abs_rel
+    return view_abs_rel(pred, gt)
 
 
 def psnr_ssim(pred_u8: np.ndarray, gt: np.ndarray) -> tuple[float, float]:

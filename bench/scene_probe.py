@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from train_scene import make_capture, render_speed  # noqa: E402  (bench/train_scene.py: the same capture)
 
 from nsim.config import load_config  # noqa: E402
+from nsim.train.loop import torch_threads  # noqa: E402
 from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
 
 
@@ -59,18 +60,19 @@ def main() -> None:
         views = trainer.eval_ids[:: max(1, len(trainer.eval_ids) // 6)][:6].tolist()
         batch_psnr: list[float] = []
         out: dict = {"tag": args.tag, "capture": args.capture, "preset": preset, "set": args.set, "evals": {}}
-        for _ in range(steps):
-            batch_psnr.append(trainer.train_step().psnr)
-            if trainer.step in evals:
-                ev = trainer.evaluate(views)["mean"]
-                row = {"heldout_psnr": round(ev["psnr"], 2), "train_batch_psnr_last100": round(float(np.mean(batch_psnr[-100:])), 2),
-                       "abs_rel_median": round(ev.get("abs_rel_median", float("nan")), 3),
-                       "train_seconds": round(trainer.train_seconds, 1)}
-                out["evals"][trainer.step] = row
-                print(f"{args.tag} step {trainer.step}: {row}", flush=True)
-        if args.render_check:
-            out["render"] = render_check(trainer, data, views)
-            print(f"{args.tag} render: {out['render']}", flush=True)
+        with torch_threads(trainer.loop_threads()):  # the thread count the training loop holds
+            for _ in range(steps):
+                batch_psnr.append(trainer.train_step().psnr)
+                if trainer.step in evals:
+                    ev = trainer.evaluate(views)["mean"]
+                    row = {"heldout_psnr": round(ev["psnr"], 2), "train_batch_psnr_last100": round(float(np.mean(batch_psnr[-100:])), 2),
+                           "abs_rel_median": round(ev.get("abs_rel_median", float("nan")), 3),
+                           "train_seconds": round(trainer.train_seconds, 1)}
+                    out["evals"][trainer.step] = row
+                    print(f"{args.tag} step {trainer.step}: {row}", flush=True)
+            if args.render_check:
+                out["render"] = render_check(trainer, data, views)
+                print(f"{args.tag} render: {out['render']}", flush=True)
     print(json.dumps(out))
 
 

@@ -29,6 +29,7 @@ from train_scene import make_capture  # noqa: E402  (bench/train_scene.py: the s
 from nsim.config import load_config  # noqa: E402
 from nsim.train import heap  # noqa: E402
 from nsim.train import scene as scene_mod  # noqa: E402
+from nsim.train.loop import torch_threads  # noqa: E402
 from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
 
 
@@ -52,29 +53,30 @@ def main() -> None:
         cfg = load_config(TrainSceneConfig, stage="train_scene", preset=preset,
                           overrides=[f"optim.steps={max(warmup + steps, 1)}", *args.set])
         trainer = SceneTrainer(data, cfg, device="cpu", seed=0)
-        for _ in range(warmup):
-            trainer.train_step()
-        spent = {"sum_s": 0.0, "optimizer_s": 0.0}
-        real_sum, real_step = scene_mod._sum_in_order, trainer.optimizer.step
+        with torch_threads(trainer.loop_threads()):  # the thread count the training loop holds
+            for _ in range(warmup):
+                trainer.train_step()
+            spent = {"sum_s": 0.0, "optimizer_s": 0.0}
+            real_sum, real_step = scene_mod._sum_in_order, trainer.optimizer.step
 
-        def timed_sum(tensors):
-            t = time.perf_counter()
-            out = real_sum(tensors)
-            spent["sum_s"] += time.perf_counter() - t
-            return out
+            def timed_sum(tensors):
+                t = time.perf_counter()
+                out = real_sum(tensors)
+                spent["sum_s"] += time.perf_counter() - t
+                return out
 
-        def timed_step(*a, **k):
-            t = time.perf_counter()
-            out = real_step(*a, **k)
-            spent["optimizer_s"] += time.perf_counter() - t
-            return out
+            def timed_step(*a, **k):
+                t = time.perf_counter()
+                out = real_step(*a, **k)
+                spent["optimizer_s"] += time.perf_counter() - t
+                return out
 
-        scene_mod._sum_in_order = timed_sum
-        trainer.optimizer.step = timed_step
-        start = trainer.train_seconds
-        for _ in range(steps):
-            trainer.train_step()
-        total = trainer.train_seconds - start
+            scene_mod._sum_in_order = timed_sum
+            trainer.optimizer.step = timed_step
+            start = trainer.train_seconds
+            for _ in range(steps):
+                trainer.train_step()
+            total = trainer.train_seconds - start
     params = sum(p.numel() for g in trainer.optimizer.param_groups for p in g["params"])
     res = {"preset": preset, "set": args.set, "heap": not args.no_heap and heap.keep_large_blocks_on_heap(),
            "parameters": params, "timed_steps": steps, "step_ms": 1e3 * total / steps,

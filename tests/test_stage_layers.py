@@ -1,4 +1,6 @@
-"""No stage imports another stage (STYLE.md, "Three layers for every stage").
+"""No stage imports another stage, and no stage file grows past ~300 lines (STYLE.md, "Three layers
+for every stage"; "A stage file reads, calls and publishes. When it grows past ~300 lines, the core
+has leaked into it.").
 
 A stage (``nsim/stages/<stage>.py``) reads its inputs, calls the core and publishes; what two stages
 share lives in the core (``nsim/rendering/``, ``nsim/sensors/``, ...), never in one of the stages.
@@ -7,7 +9,9 @@ at module level and inside functions and classes alike (a lazy import is still a
 ``import nsim.stages.x``, ``from nsim.stages.x import y``, ``from nsim.stages import x`` and their
 relative forms (``from . import x``, ``from .x import y``). The package's ``__init__`` (the stage
 registry) is held to the same rule: it loads stages by name when asked (``stage_module``), never by
-an import statement.
+an import statement. The size check counts every line of each ``nsim/stages/*.py``; the stages still
+over the limit are listed in ``OVER_LIMIT``, each held to the size it had when listed (it may shrink,
+never grow).
 """
 
 from __future__ import annotations
@@ -16,6 +20,11 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+#: The most lines a stage file may have (STYLE.md's "~300").
+MAX_STAGE_LINES = 300
+#: Stage files still over ``MAX_STAGE_LINES`` (issue 23), each with the size it may not exceed.
+OVER_LIMIT = {"import_log.py": 315, "render.py": 345, "simulate.py": 311}
 
 
 def stage_import_violations(root: Path, package: str = "nsim.stages") -> list[str]:
@@ -95,3 +104,37 @@ def test_violations_are_found_and_named(tmp_path):
         "pkg/stages/beta.py:5: imports pkg.stages.gamma",
         "pkg/stages/gamma.py:1: imports pkg.stages.beta",
     ]
+
+
+def stage_size_violations(folder: Path, limit: int = MAX_STAGE_LINES,
+                          allowed: dict[str, int] | None = None) -> list[str]:
+    """``"<file>: N lines (at most M)"`` for every ``*.py`` in ``folder`` longer than ``limit`` lines, or
+    than its own entry in ``allowed`` (a file listed there may have that many)."""
+    allowed = allowed or {}
+    found = []
+    for path in sorted(folder.glob("*.py")):
+        lines = len(path.read_text(encoding="utf-8").splitlines())
+        most = max(limit, allowed.get(path.name, limit))
+        if lines > most:
+            found.append(f"{path.name}: {lines} lines (at most {most})")
+    return found
+
+
+def test_stage_files_stay_thin():
+    folder = ROOT / "nsim" / "stages"
+    assert (folder / "reconstruct.py").is_file() and "reconstruct.py" not in OVER_LIMIT
+    found = stage_size_violations(folder, MAX_STAGE_LINES, OVER_LIMIT)
+    assert not found, ("stage files over the limit (move the core work below the stages):\n" + "\n".join(found))
+
+
+def test_size_violations_are_found_and_named(tmp_path):
+    (tmp_path / "thin.py").write_text("x = 1\n" * 300)
+    (tmp_path / "fat.py").write_text("x = 1\n" * 301)
+    (tmp_path / "listed.py").write_text("x = 1\n" * 320)
+    (tmp_path / "grown.py").write_text("x = 1\n" * 321)
+    (tmp_path / "notes.txt").write_text("x = 1\n" * 999)  # not a module
+    assert stage_size_violations(tmp_path, 300, {"listed.py": 320, "grown.py": 320}) == [
+        "fat.py: 301 lines (at most 300)",
+        "grown.py: 321 lines (at most 320)",
+    ]
+    assert stage_size_violations(tmp_path, 400) == []

@@ -102,7 +102,7 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
-from nsim.io.robot_log import BODY_FRAMES, Trajectory, check_keys
+from nsim.io.robot_log import BODY_FRAMES, CameraStreamInfo, Trajectory, check_keys
 from nsim.io.rosbag import RING_FIELDS, TIME_FIELDS, LidarPoints, camera_from_info, matrix_from_transform
 
 log = logging.getLogger(__name__)
@@ -411,29 +411,18 @@ def read_rig_urdf(path: Path, names: list[str]) -> FolderRig:
 
 
 @dataclass(frozen=True)
-class FolderCameraStream:
+class FolderCameraStream(CameraStreamInfo):
     """One camera (or depth camera) folder; frames are decoded on demand by :meth:`RobotFolder.image`.
 
-    The attributes of :class:`nsim.io.robot_log.CameraStream` that a recording needs: topic: the
+    The attributes of :class:`nsim.io.robot_log.CameraStreamInfo` (what a recording needs): topic: the
     stream's folder relative to the recording (``cameras/front``); info_topic: its camera_info.yaml,
     relative; frame_id: the stream's name (its sensor in the rig); camera: from camera_info.yaml;
     encoding: what the frames hold, in ROS's words (rgb8, mono8, mono16; depth 16UC1 for millimetre
     PNG, 32FC1 for metres); stamps_ns: (N,) int64; files: (N,) the frames, in order.
     """
 
-    name: str
-    topic: str
-    info_topic: str
-    frame_id: str
-    camera: Camera
-    encoding: str
-    is_depth: bool
-    stamps_ns: np.ndarray
     files: tuple[Path, ...]
     stamps_from_bag: int = 0
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
 
 
 @dataclass(frozen=True)

@@ -248,29 +248,39 @@ class MessageIndex:
 
 
 @dataclass(frozen=True)
-class CameraStream:
-    """One camera (or depth camera) topic. Frames are decoded on demand by :meth:`RobotLog.image`.
+class CameraStreamInfo:
+    """What a recording knows of one camera (or depth camera) stream, wherever its frames are held: a
+    bag's topic (:class:`CameraStream`) or a folder (``nsim.io.robot_folder.FolderCameraStream``).
 
-    stamps_ns: (N,) int64 header stamps (see the module docstring); camera: intrinsics of the
-    frames as decoded (for depth, of the depth image); frame_id: the images' frame (OpenCV axes by
-    REP 103); encoding: the Image encoding, or the CompressedImage format string; is_depth: frames
-    come back as float32 metres (NaN = no measurement for 16UC1's 0; 32FC1 as recorded).
+    name: the stream's name (its sensor in the rig); topic, info_topic: where its frames and its
+    camera info are; stamps_ns: (N,) int64 header stamps (see the module docstring); camera:
+    intrinsics of the frames as decoded (for depth, of the depth image); frame_id: the images' frame
+    (OpenCV axes by REP 103); encoding: the Image encoding, or the CompressedImage format string;
+    is_depth: frames come back as float32 metres (NaN = no measurement for 16UC1's 0; 32FC1 as recorded).
     """
 
     name: str
     topic: str
-    msgtype: str
     info_topic: str
     frame_id: str
     camera: Camera
     encoding: str
     is_depth: bool
     stamps_ns: np.ndarray
-    stamps_from_bag: int
-    messages: MessageIndex
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
+
+
+@dataclass(frozen=True)
+class CameraStream(CameraStreamInfo):
+    """One camera (or depth camera) topic (:class:`CameraStreamInfo`). Frames are decoded on demand by
+    :meth:`RobotLog.image`. msgtype: the topic's message type; stamps_from_bag: how many stamps came
+    from the bag's receive times; messages: where each frame's message is."""
+
+    msgtype: str
+    stamps_from_bag: int
+    messages: MessageIndex
 
 
 @dataclass(frozen=True)
@@ -907,9 +917,10 @@ class RobotLog:
             raise InputError(f"{self._where(entry.image, 0)}: the image is {g.size[0]}x{g.size[1]}, its CameraInfo "
                              f"({entry.info}) says {camera.width}x{camera.height}")
         self._warn_bag_stamps(g)
-        stream = CameraStream(name, entry.image, msgtype, entry.info, g.frame_id or (info.first.header.frame_id.lstrip("/")),
-                              camera, encoding, depth, np.array(g.stamps.stamps, np.int64), g.stamps.from_bag,
-                              g.index())
+        stream = CameraStream(name=name, topic=entry.image, info_topic=entry.info,
+                              frame_id=g.frame_id or (info.first.header.frame_id.lstrip("/")), camera=camera,
+                              encoding=encoding, is_depth=depth, stamps_ns=np.array(g.stamps.stamps, np.int64),
+                              msgtype=msgtype, stamps_from_bag=g.stamps.from_bag, messages=g.index())
         if msgtype == COMPRESSED_IMAGE and len(stream):
             self._frame_checked(stream, g.first, 0)  # the first frame decodes, at the camera's size
         return stream

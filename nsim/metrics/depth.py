@@ -16,14 +16,17 @@ invalid; NaN in the prediction at a valid pixel is an error, as is a comparison 
 
 These are the only definitions: ``scored_depths`` selects, scales and clamps the pixels;
 ``depth_metrics`` computes every error from them, ``abs_rel`` AbsRel alone and ``depth_error_map`` the
-per-pixel ``|p - g| / g`` (whose mean is AbsRel).
+per-pixel ``|p - g| / g`` (whose mean is AbsRel). ``view_abs_rel`` is ``abs_rel`` for one rendered
+view among many: pixels with no rendered depth (NaN) do not count, and a view with nothing to score
+is NaN (a mean over views leaves it out) instead of an error. For a scene of arbitrary scale,
+``DepthConfig.in_units`` gives the same bounds in its units.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -48,6 +51,12 @@ class DepthConfig:
                 f"DepthConfig.max_depth_m: expected finite float > min_depth_m ({self.min_depth_m}), "
                 f"got {self.max_depth_m!r}"
             )
+
+    def in_units(self, units_per_m: float) -> DepthConfig:
+        """The same bounds in a scene's own length unit, ``units_per_m`` of which make a metre (1: metres)."""
+        if not (math.isfinite(units_per_m) and units_per_m > 0.0):
+            raise ValueError(f"DepthConfig.in_units: expected a finite units_per_m > 0, got {units_per_m!r}")
+        return replace(self, min_depth_m=self.min_depth_m * units_per_m, max_depth_m=self.max_depth_m * units_per_m)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -184,6 +193,19 @@ def abs_rel(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DepthConfig
     """
     _, p, g, _ = scored_depths(pred_m, gt_m, cfg, mask)
     return float(np.mean(_relative_error(p, g)))
+
+
+def view_abs_rel(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DepthConfig()) -> float:
+    """``abs_rel`` of one rendered view: over the valid pixels whose prediction is a number (NaN: nothing
+    was rendered there), or NaN when no pixel counts (no valid ground truth in the view, or no depth
+    rendered where there is), so that a mean over views leaves the view out. Other bad input (differing
+    sizes) raises InputError as ``abs_rel`` does."""
+    pred_m = np.asarray(pred_m, dtype=np.float64)
+    gt_m = np.asarray(gt_m, dtype=np.float64)
+    scored = ~np.isnan(pred_m)
+    if pred_m.shape == gt_m.shape and not (scored & valid_depth_mask(gt_m, cfg)).any():
+        return math.nan
+    return abs_rel(pred_m, gt_m, cfg, scored)
 
 
 def depth_error_map(pred_m: np.ndarray, gt_m: np.ndarray, cfg: DepthConfig = DepthConfig(),

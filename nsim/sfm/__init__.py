@@ -8,6 +8,7 @@ for registering a robot's recording into a scene (``nsim register-log``).
             scale helpers and pose errors against ground truth (plain numpy);
 ``metric``  the scale-and-frame step: reference trajectory, known distance or camera height;
 ``imported`` poses from an exported transforms.json instead of SfM, through the same step;
+``reconstruction`` the frames, SfM and that step as the ``poses`` artifact's files (``nsim reconstruct``);
 ``plot``    the top-down PNG of the camera path over the sparse points;
 ``localize`` single images (a robot's frames) localised in a scene's sparse model;
 ``register`` a robot's odometry trajectory fitted to its localised frames (frame, clock offset).

@@ -34,16 +34,15 @@ Artifact layout (kind ``poses``)::
     top_down.png         the camera path over the sparse points, from above
 
 Wall time per phase is in the manifest's ``timing`` (``nsim show``), outside the artifact's
-digest, so that a rerun keeps the same id.
+digest, so that a rerun keeps the same id. The frame selection, SfM, scale step and these files are
+``nsim.sfm.reconstruction``'s (an import's, ``nsim.sfm.imported``'s): this stage reads the inputs,
+keys the run and publishes.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
-import tempfile
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -52,7 +51,6 @@ import numpy as np
 from nsim.config import from_dict, param, param_from
 from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.progress import progress_bar
 from nsim.sfm.options import SfmOptions
 
 if TYPE_CHECKING:
@@ -62,7 +60,6 @@ log = logging.getLogger(__name__)
 
 STAGE = "reconstruct"
 VERSION = 4
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,19 +182,6 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str,
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
-# ----------------------------------------------------------------------------------------------
-
-
-def _image_status(name: str, stats: dict[str, Any]) -> str:
-    from nsim.sfm.frames import NOT_REGISTERED, POSE_JUMP, USED
-
-    if name in stats.get("rejected", ()):
-        return POSE_JUMP
-    if name in stats.get("unregistered", ()):
-        return NOT_REGISTERED
-    return USED
-
-
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     inputs.validate()
     if inputs.capture is not None:
@@ -233,51 +217,11 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     return Outputs(poses=out.ref)
 
 
-def _known_camera(path: Path | None):
-    """A known camera from a transforms.json (its first frame) or a YAML/JSON camera dict."""
-    if path is None:
-        return None
-    from nsim.config import read_yaml
-    from nsim.geometry.cameras import Camera
-    from nsim.io.transforms_json import read_transforms
-
-    if path.suffix == ".json":
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: malformed JSON at line {exc.lineno}: {exc.msg}") from None
-        if isinstance(data, dict) and ("frames" in data or "fl_x" in data):
-            return read_transforms(path).frames[0].camera
-    else:
-        data = read_yaml(path, "intrinsics")
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a camera mapping (model, width, height, fx, fy, cx, cy, dist)")
-    try:
-        return Camera.from_dict(data)
-    except (ValueError, TypeError, KeyError) as exc:
-        raise InputError(f"{path}: not a camera: {exc}") from None
-
-
 def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_dir: Path,
                 timing: dict[str, Any]) -> dict[str, Any]:
-    from nsim.io.ply import write_ply
-    from nsim.io.transforms_json import (
-        METRIC_KEY,
-        SCALE_KEY,
-        Z_UP_KEY,
-        Frame,
-        TransformsData,
-        write_transforms,
-    )
-    from nsim.sfm.colmap import run_sfm, write_model
-    from nsim.sfm.frames import frame_summary_line, load_image_folder, select_video, write_frames
-    from nsim.sfm.metric import to_metric
-    from nsim.sfm.plot import write_top_down_png
+    """SfM on the source's frames, made metric, into ``out_dir`` (``nsim.sfm.reconstruction``); returns the summary."""
+    from nsim.sfm.reconstruction import reconstruct as reconstruct_frames
 
-    phases: dict[str, float] = {}
-    t0 = time.perf_counter()
-    known_camera = _known_camera(inputs.intrinsics)
-    reference, kd = _scale_inputs(inputs)
     capture_times: dict[str, float] = {}
     if inputs.capture is not None:
         # the capture's lossless frames (its video is H.264-compressed, as a phone's would be)
@@ -290,130 +234,26 @@ def reconstruct(inputs: Inputs, cfg: Config, ctx: RunContext, device: str, out_d
                          for f in read_transforms(art.file("transforms.json")).frames if f.timestamp_s is not None}
     else:
         source = Path(inputs.source)
-    selection = None
-    with progress_bar(None, "selecting frames", ctx.show_progress) as bar:
-        if source.is_dir():
-            frames = load_image_folder(source, shared_intrinsics=cfg.shared_intrinsics)
-        elif source.suffix.lower() in VIDEO_SUFFIXES:
-            selection = select_video(source, cfg.frames, cfg.blur_ratio, cfg.dedup_threshold,
-                                     progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
-            frames = selection.frames
-        else:
-            raise InputError(f"{source}: expected a video ({', '.join(VIDEO_SUFFIXES)}) or a folder of images")
-    write_frames(frames, out_dir / "images")
-    phases["frame_selection_s"] = time.perf_counter() - t0
-
-    focal_prior = None
-    if source.is_dir() and inputs.capture is None and known_camera is None and cfg.exif_focal_prior:
-        from nsim.sfm.frames import exif_hfov_deg, list_image_files
-
-        focal_prior = exif_hfov_deg(list_image_files(source))
-    options = SfmOptions(**{name: getattr(cfg, name) for name in SFM_SETTINGS}, device=device, seed=ctx.seed,
-                         focal_prior_hfov_deg=focal_prior)
-    with tempfile.TemporaryDirectory(prefix="nsim-sfm-") as work, \
-            progress_bar(None, "structure from motion", ctx.show_progress) as bar:
-        result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,
-                         progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
-    timestamps = ({f.name: f.timestamp_s for f in frames if f.timestamp_s is not None}
-                  or {f.name: capture_times[Path(f.name).stem] for f in frames if Path(f.name).stem in capture_times}
-                  or None)
-    t1 = time.perf_counter()
-    result, scale = to_metric(result, timestamps, reference=reference, known_distance=kd,
-                              camera_height_m=inputs.camera_height_m, max_dt_s=cfg.max_dt_s, seed=ctx.seed)
-    phases.update({f"{k}_s": v for k, v in result.stats.phase_wall_s.items()} if result.stats.phase_wall_s else {})
-    phases["scale_s"] = time.perf_counter() - t1
-
-    names = result.registered_names
-    tframes = [
-        Frame(file_path=f"images/{n}", cam_to_world=result.cam_to_world[n], camera=result.cameras[n],
-              timestamp_s=(timestamps or {}).get(n))
-        for n in names
-    ]
-    write_transforms(out_dir / "transforms.json", TransformsData(frames=tframes, extra={
-        SCALE_KEY: scale.source, METRIC_KEY: scale.source != "arbitrary", Z_UP_KEY: scale.frame == "gravity"}))
-    write_model(result, out_dir / "sparse")
-    write_ply(out_dir / "sparse_points.ply", result.points_xyz.astype(np.float32),
-              rgb=result.points_rgb.astype(np.uint8),
-              fields={"error_px": result.points_error_px.astype(np.float32),
-                      "track_length": result.points_track_length.astype(np.uint16)})
-    stats = result.stats.to_dict()
-    stats.pop("phase_wall_s", None)
-    fates = {f.name: _image_status(f.name, stats) for f in frames}
-    video_frames = selection.report(fates) if selection is not None else None
-    report = {
-        "source": f"capture {inputs.capture[:12]}" if inputs.capture else source.name,
-        "images_given": stats.get("images_given"),
-        "images_registered": stats.get("images_registered"),
-        "mean_reprojection_error_px": stats.get("mean_reprojection_error_px"),
-        "mean_track_length": stats.get("mean_track_length"),
-        "num_points3d": stats.get("num_points3d"),
-        "scale": scale.to_dict(),
-        "sfm": stats,
-        "frames_selected": len(frames),
-        "focal_prior": {"source": "exif", "hfov_deg": focal_prior} if focal_prior is not None else None,
-        "principal_point": stats.get("principal_point"),
-        # every input image and what became of it
-        "images": [{"name": f.name, "status": fates[f.name]} for f in frames],
-        # every frame of a video source and what became of it (joins ``images`` on name)
-        "video_frames": video_frames,
-    }
-    (out_dir / "report.json").write_text(json.dumps(_jsonable(report), indent=1, sort_keys=True) + "\n")
-    ref_xyz = reference.cam_to_world[:, :3, 3] if reference is not None else None
-    title = f"{source.name}: {len(names)}/{len(frames)} registered, scale: {scale.source}"
-    write_top_down_png(out_dir / "top_down.png", result.poses_se3(names), result.points_xyz, title=title,
-                       units="m" if scale.source != "arbitrary" else "units", reference_xyz=ref_xyz)
+    options = SfmOptions(**{name: getattr(cfg, name) for name in SFM_SETTINGS}, device=device, seed=ctx.seed)
+    summary, phases = reconstruct_frames(out_dir, inputs, cfg, options, source, capture_times, ctx.show_progress)
     timing["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
-    summary = {
-        "images_given": report["images_given"],
-        "images_registered": report["images_registered"],
-        "scale_source": scale.source,
-        "camera_model": cfg.camera_model,
-    }
-    if video_frames is not None:
-        summary["video_frames"] = frame_summary_line(video_frames)
+    if "video_frames" in summary:  # a video: what became of its frames (shown with nsim -v)
         log.info("%s: %s", source.name, summary["video_frames"])
     return summary
-
-
-def _scale_inputs(inputs: Inputs):
-    """The reference (named by file name only: where the file lies must not change the artifact's
-    bytes) and the known distance as (point_a, point_b, metres), each None when not given."""
-    from nsim.sfm.metric import load_reference
-
-    reference = kd = None
-    if inputs.reference is not None:
-        reference = dataclasses.replace(load_reference(inputs.reference), source=Path(inputs.reference).name)
-    if inputs.known_distance is not None:
-        v = np.asarray(inputs.known_distance, dtype=float)
-        kd = (v[:3], v[3:6], float(v[6]))
-    return reference, kd
 
 
 def import_transforms(inputs: Inputs, cfg: Config, ctx: RunContext, plan: ImportPlan,
                       out_dir: Path) -> dict[str, Any]:
     """Bring an exported transforms.json (nerfstudio / PolyCam / Record3D) and its files in (``plan_import``)."""
     from nsim.sfm.imported import write_import
+    from nsim.sfm.reconstruction import scale_inputs
 
-    reference, kd = _scale_inputs(inputs)
+    reference, kd = scale_inputs(inputs.reference, inputs.known_distance)
     report = write_import(plan, out_dir, reference=reference, known_distance=kd,
                           camera_height_m=inputs.camera_height_m, metric=inputs.metric, max_dt_s=cfg.max_dt_s,
                           seed=ctx.seed)
     return {"images_given": report["images_given"], "images_registered": report["images_registered"],
             "images_skipped": len(report["skipped_frames"]), "scale_source": report["scale"]["source"]}
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:

@@ -44,7 +44,6 @@ import hashlib
 import json
 import logging
 import os
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,7 +73,8 @@ log = logging.getLogger(__name__)
 class HumanOptimConfig:
     """Steps, batch and Adam with an exponentially decaying learning rate (from ``lr_*`` to
     ``lr_* * lr_final_factor``). ``lr_blend = 0`` freezes the skinning weights (cheaper).
-    ``num_threads``: torch CPU threads (0 leaves torch's default)."""
+    ``num_threads``: torch CPU threads (0 leaves torch's default) while the training loop runs and
+    while :func:`export_human` renders; the count is restored after each (``HumanTrainer.loop_threads``)."""
 
     steps: int = param(3000, ge=1)
     rays_per_batch: int = param(1024, ge=1)
@@ -256,8 +256,6 @@ class HumanTrainer(ResumableTrainer):
     def __init__(self, data: HumanTrainData, cfg: TrainHumanConfig, device: str = "cpu", seed: int = 0,
                  background_model=None) -> None:
         self.data, self.cfg, self.device, self.seed = data, cfg, torch.device(device), int(seed)
-        if cfg.optim.num_threads > 0 and self.device.type == "cpu":
-            torch.set_num_threads(cfg.optim.num_threads)
         self.train_ids, self.eval_ids = data.split(cfg.data)
         init = torch.Generator().manual_seed(_step_seed(seed, 0, "init"))
         self.model = HumanModel(cfg.model, data.skeleton, generator=init).to(self.device)
@@ -329,13 +327,7 @@ class HumanTrainer(ResumableTrainer):
         offsets = torch.cumsum(counts, 0) - counts
         return torch.cat(lists), offsets, counts
 
-    # ------------------------------------------------------------------ schedules and batches
-    def lr_scale(self, step: int) -> float:
-        o = self.cfg.optim
-        decay = o.lr_final_factor ** min(1.0, step / max(1, o.steps))
-        warm = min(1.0, (step + 1) / o.warmup_steps) if o.warmup_steps > 0 else 1.0
-        return decay * warm
-
+    # ------------------------------------------------------------------ batches
     def batch(self, step: int) -> tuple[Tensor, Tensor, Tensor, torch.Generator]:
         """Frame index ``(B,)`` (into the data), pixel rows ``v`` and columns ``u`` of ``step``'s
         rays: a pure function of ``(seed, step)``; and the step's generator."""
@@ -386,11 +378,9 @@ class HumanTrainer(ResumableTrainer):
 
     # ------------------------------------------------------------------ one step
     def train_step(self) -> StepStats:
-        t0 = time.perf_counter()
+        t0 = self._begin_step()
         step = self.step
         cfg = self.cfg
-        self._set_learning_rates()
-        self.model.train()
         frames, v, u, g = self.batch(step)
         out = self.render_rays(frames, v, u, generator=g)
         target = self.images[frames, v, u].float() / 255.0
@@ -407,6 +397,12 @@ class HumanTrainer(ResumableTrainer):
         loss.backward()
         self.optimizer.step()
         return self._finish_step(t0, loss, mse, extra)
+
+    def loop_threads(self) -> int:
+        """torch's intra-op threads while the training loop (and :func:`export_human`) runs: ``optim.num_threads``
+        on a CPU; 0 (torch's count left alone) on a GPU or with ``num_threads`` 0."""
+        threads = self.cfg.optim.num_threads
+        return threads if self.device.type == "cpu" and threads > 0 else 0
 
     # ------------------------------------------------------------------ checkpoints
     def meta(self) -> dict[str, Any]:
@@ -572,13 +568,16 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
         "config": to_dict(cfg),
     })
     o = cfg.output
-    write_image(out_dir / "turntable.png", turntable(model, None, o.preview_views, o.preview_width, o.preview_height))
-    write_gif(out_dir / "gait.gif", gait_frames(model, o.gait_frames, o.preview_width, o.preview_height), o.gait_fps)
+    with loop.torch_threads(trainer.loop_threads()):  # the previews and scores at the training's thread count
+        turntable_rgb = turntable(model, None, o.preview_views, o.preview_width, o.preview_height)
+        gait = gait_frames(model, o.gait_frames, o.preview_width, o.preview_height)
+        views = spread(list(trainer.eval_ids), o.eval_views)
+        ev = trainer.evaluate(views, keep_images=True) if views else None
+    write_image(out_dir / "turntable.png", turntable_rgb)
+    write_gif(out_dir / "gait.gif", gait, o.gait_fps)
     (out_dir / "history.json").write_text(json.dumps(trainer.history, indent=1) + "\n")
     summary: dict[str, Any] = {"steps": trainer.step, "canonical_box_m": [lo.tolist(), hi.tolist()]}
-    views = spread(list(trainer.eval_ids), o.eval_views)
-    if views:
-        ev = trainer.evaluate(views, keep_images=True)
+    if ev is not None:
         (out_dir / "eval").mkdir(exist_ok=True)
         for i, pred in ev["images"].items():
             write_image(out_dir / "eval" / f"frame_{i:05d}.png",

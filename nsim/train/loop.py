@@ -11,15 +11,21 @@ at the last, a checkpoint every ``checkpoint_every`` steps and at the last (its 
 as training time), a progress bar or periodic log lines. Every random draw of a step comes from a
 generator seeded by :func:`step_seed` ``(trainer, seed, step, purpose)``, so a run killed and
 resumed from its checkpoint repeats an uninterrupted one exactly.
+
+Threads. The loop sets torch's intra-op thread count once, to the trainer's ``loop_threads()``
+(0: torch's own count is left alone, e.g. on a GPU), and restores what it was when the loop ends,
+however it ends (:func:`torch_threads`); neither building a trainer nor a step changes it, so a
+training leaves the process's thread count as it found it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -43,6 +49,24 @@ def spread(items: list[int], n: int) -> list[int]:
     return [items[int(round(k * (len(items) - 1) / max(1, n - 1)))] for k in range(n)]
 
 
+@contextlib.contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """torch's intra-op thread count set to ``count`` while the body runs (0: left as it is), and what it
+    was before put back afterwards, even when the body raises or changed it itself. With torch's OpenMP
+    backend the count is the calling thread's: worker threads keep their own (see ``nsim.train.scene``'s
+    batch parts)."""
+    import torch
+
+    before = torch.get_num_threads()
+    if count > 0 and count != before:
+        torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+
+
 @dataclass
 class StepStats:
     """One training step: the step count after it, its loss, the batch's PSNR, seconds, and extras."""
@@ -61,6 +85,8 @@ class Trainer(Protocol):
 
     def train_step(self) -> StepStats: ...
 
+    def loop_threads(self) -> int: ...
+
     def history_row(self, stats: StepStats) -> dict[str, Any]: ...
 
     def save_checkpoint(self, path: Path) -> None: ...
@@ -70,9 +96,15 @@ class ResumableTrainer:
     """The checkpoint state of a trainer with ``model``, ``optimizer``, ``step``, ``train_seconds``,
     ``history`` and ``device``. Subclasses give ``meta()`` (what identifies the run: a checkpoint of
     another run is refused) and may add state in ``_extra_state`` / ``_load_extra_state`` (loaded
-    after the model, before the optimiser)."""
+    after the model, before the optimiser). Also shared: a step's start and end (:meth:`_begin_step`,
+    :meth:`_finish_step`) and the learning-rate schedule (:meth:`lr_scale` of ``cfg.optim``'s ``steps``,
+    ``warmup_steps`` and ``lr_final_factor``, times each group's ``base_lr``)."""
 
     checkpoint_format = 1
+
+    def loop_threads(self) -> int:
+        """torch's intra-op threads while :func:`train_loop` runs this trainer (0: leave torch's count)."""
+        return 0
 
     def meta(self) -> dict[str, Any]:
         raise NotImplementedError
@@ -104,11 +136,27 @@ class ResumableTrainer:
         """Atomically write the full training state to ``path`` (``nsim.train.checkpoint``'s format)."""
         checkpoint.save_checkpoint(self.state_dict(), path)
 
+    def lr_scale(self, step: int) -> float:
+        """The learning rates' factor at ``step``: from 1 (after a linear warm-up over ``cfg.optim.warmup_steps``)
+        down exponentially to ``cfg.optim.lr_final_factor`` at ``cfg.optim.steps``."""
+        o = self.cfg.optim
+        decay = o.lr_final_factor ** min(1.0, step / max(1, o.steps))
+        warm = min(1.0, (step + 1) / o.warmup_steps) if o.warmup_steps > 0 else 1.0
+        return decay * warm
+
     def _set_learning_rates(self) -> None:
         """Each optimiser group's rate: its base rate (``base_lr``) times ``lr_scale(step)``."""
         scale = self.lr_scale(self.step)
         for group, base in zip(self.optimizer.param_groups, self.base_lr, strict=True):
             group["lr"] = base * scale
+
+    def _begin_step(self) -> float:
+        """Start a step: its learning rates set, the model in training mode; returns its start time
+        (``time.perf_counter``) for :meth:`_finish_step`."""
+        t0 = time.perf_counter()
+        self._set_learning_rates()
+        self.model.train()
+        return t0
 
     def _finish_step(self, t0: float, loss, mse, extra: dict[str, float]) -> StepStats:
         """Count the step begun at ``t0`` (``time.perf_counter``) and its seconds; its stats (PSNR from ``mse``)."""
@@ -129,12 +177,13 @@ def train_loop(trainer: Trainer, steps: int, log_every: int, checkpoint_every: i
     """Run ``trainer`` from its current step to ``steps`` (or ``stop_after``: return there without a
     checkpoint, as if killed; tests). Every ``log_every`` steps and at the last, ``trainer.history_row(stats)``
     joins the history, the bar shows loss and PSNR, ``logger`` logs them and ``on_log(trainer, stats)`` is
-    called; every ``checkpoint_every`` steps and at the last, the state goes to ``ckpt``."""
+    called; every ``checkpoint_every`` steps and at the last, the state goes to ``ckpt``. torch's thread
+    count is ``trainer.loop_threads()`` throughout and is restored afterwards (module docstring)."""
     from nsim.progress import progress_bar
 
     logger = logger or logging.getLogger(__name__)
     end = steps if stop_after is None else min(steps, stop_after)
-    with progress_bar(steps, label, progress) as bar:
+    with torch_threads(trainer.loop_threads()), progress_bar(steps, label, progress) as bar:
         bar.advance(trainer.step)
         while trainer.step < end:
             stats = trainer.train_step()

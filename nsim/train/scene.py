@@ -37,7 +37,6 @@ it after publishing. Later stages load the artifact with ``nsim.rendering.load_m
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import logging
@@ -73,7 +72,6 @@ from nsim.train.scene_data import (
 from nsim.train.scene_eval import (
     EvalConfig,
     ViewRays,
-    abs_rel,
     render_image,
     score_views,
 )
@@ -94,7 +92,8 @@ class OptimConfig:
 
     Each group's learning rate goes from ``lr_*`` (after a linear warm-up) to
     ``lr_* * lr_final_factor`` at the last step. ``num_threads``: torch CPU threads (0 leaves
-    torch's default). ``mixed_precision``: fp16 autocast with a grad scaler, CUDA only.
+    torch's default), per batch part; the training loop holds them and restores the count after
+    (``SceneTrainer.loop_threads``). ``mixed_precision``: fp16 autocast with a grad scaler, CUDA only.
     ``batch_threads``: with ``k > 1`` parts, part ``j`` draws its jitter from ``(seed, step, j)``
     and its loss is scaled by its share of the batch; each part's gradients come back from
     ``torch.autograd.grad`` and are summed in part order, so the step is the whole batch's and
@@ -273,8 +272,6 @@ class SceneTrainer(ResumableTrainer):
         self.units_per_m, self.units_from = units_per_metre(data)
         cfg = in_scene_units(cfg, self.units_per_m)
         self.data, self.cfg, self.device, self.seed = data, cfg, torch.device(device), int(seed)
-        if cfg.optim.num_threads > 0 and self.device.type == "cpu":
-            torch.set_num_threads(cfg.optim.num_threads)
         if self.device.type == "cpu":
             from nsim.train.heap import keep_large_blocks_on_heap
 
@@ -338,12 +335,6 @@ class SceneTrainer(ResumableTrainer):
         self._parts_warm = False
 
     # ------------------------------------------------------------------ schedules
-    def lr_scale(self, step: int) -> float:
-        o = self.cfg.optim
-        decay = o.lr_final_factor ** min(1.0, step / max(1, o.steps))
-        warm = min(1.0, (step + 1) / o.warmup_steps) if o.warmup_steps > 0 else 1.0
-        return decay * warm
-
     def anneal(self, step: int) -> float:
         n = self.cfg.optim.proposal_anneal_steps
         if n <= 0:
@@ -454,11 +445,9 @@ class SceneTrainer(ResumableTrainer):
 
     # ------------------------------------------------------------------ one step
     def train_step(self) -> StepStats:
-        t0 = time.perf_counter()
+        t0 = self._begin_step()
         step = self.step
         cfg = self.cfg
-        self._set_learning_rates()
-        self.model.train()
         extra = {}
         grid = cfg.sampler.kind == "grid"
         if grid and step > 0 and step % cfg.sampler.grid_update_every == 0:
@@ -489,17 +478,17 @@ class SceneTrainer(ResumableTrainer):
                                             retain_graph=self.pose_refine is not None)
                 return ls.detach(), ms.detach(), ex, grads
 
+            # the parts run on the worker threads (num_threads torch threads each, set once when the pool
+            # starts), never on this one: this thread's count is the loop's (loop_threads), set once
             if self._parts_warm:
                 results = [f.result() for f in [self._pool.submit(part, k, sl) for k, sl in enumerate(parts)]]
-            else:  # this process's first split step runs its parts in turn: compiled kernels get built once
-                results = [part(k, sl) for k, sl in enumerate(parts)]
+            else:  # this trainer's first split step runs its parts in turn: compiled kernels get built once
+                results = [self._pool.submit(part, k, sl).result() for k, sl in enumerate(parts)]
                 self._parts_warm = True
             # the parts' gradients summed in part order, whatever order the threads finished in: deterministic.
-            # The sum and the optimiser step are element-wise: they run on all the parts' cores (a thread count
-            # fixed by the config, so reruns repeat bit for bit); at 2^19-row tables they took over a quarter of a step.
-            tail_threads = self.cfg.optim.num_threads * len(parts)
-            if tail_threads > 0:
-                torch.set_num_threads(tail_threads)
+            # The sum and the optimiser step are element-wise: they run here, on all the parts' cores when the
+            # loop holds loop_threads() (a thread count fixed by the config, so reruns repeat bit for bit); at
+            # 2^19-row tables they took over a quarter of a step.
             for i, q in enumerate(params):
                 gs = [r[3][i] for r in results if r[3][i] is not None]
                 q.grad = _sum_in_order(gs) if gs else None
@@ -509,9 +498,21 @@ class SceneTrainer(ResumableTrainer):
                 extra[key] = sum(r[2].get(key, 0.0) for r in results)
         self.scaler.step(self.optimizer)
         self.scaler.update()
-        if len(parts) > 1 and self.cfg.optim.num_threads > 0:
-            torch.set_num_threads(self.cfg.optim.num_threads)
         return self._finish_step(t0, loss, mse, extra)
+
+    def loop_threads(self) -> int:
+        """torch's intra-op threads on the training loop's thread (``nsim.train.loop.train_loop`` sets them
+        once and restores them after; the post-training bakes and scoring of :func:`export_scene` use the
+        same): on a CPU ``optim.num_threads x optim.batch_threads``, the cores a step uses. A split batch's
+        parts run on the worker threads at ``num_threads`` each (set when the pool starts); this thread
+        builds the batch (indexing and element-wise work, whatever its thread count), sums the parts'
+        gradients and steps Adam on all those cores. Fixed by the config, so reruns repeat bit for bit.
+        0 (torch's count left alone) on a GPU or with ``num_threads`` 0. On one thread the fox capture's
+        walkable map took 57 s instead of 31 (2 cores)."""
+        o = self.cfg.optim
+        if self.device.type != "cpu" or o.num_threads <= 0:
+            return 0
+        return o.num_threads * max(1, o.batch_threads)
 
     def _parts(self, n: int) -> list[slice]:
         """The batch's parts for ``optim.batch_threads`` (CPU only; one part otherwise)."""
@@ -882,7 +883,7 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
     (out_dir / "bounds.json").write_text(json.dumps(bounds, indent=1) + "\n")
     phases = result.post_train_seconds
     t0 = time.perf_counter()
-    with _all_part_threads(trainer):  # the bakes are plain tensor work: on every core training used
+    with loop.torch_threads(trainer.loop_threads()):  # plain tensor work: on every core training used
         grid = bake_occupancy(trainer)
         grid.save(out_dir / "occupancy_grid.npy")
         if not data.metric:  # the grid's own JSON says metres; its box key stays for OccupancyGrid.load
@@ -906,7 +907,7 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
     if views:
         t0 = time.perf_counter()
         (out_dir / "eval").mkdir(exist_ok=True)
-        with _all_part_threads(trainer):  # the render's chunks run on the part threads, the fit and LPIPS here
+        with loop.torch_threads(trainer.loop_threads()):  # chunks on the part threads, fit and LPIPS here
             ev = trainer.evaluate(views, final=True, image_dir=out_dir / "eval")
         phases["heldout_scores"] = round(time.perf_counter() - t0, 2)
         (out_dir / "eval.json").write_text(json.dumps({
@@ -916,25 +917,6 @@ def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, A
         summary["eval_image_size"] = ev["resolution"]["scored_wh"]
     result.evaluation = summary
     return summary
-
-
-@contextlib.contextmanager
-def _all_part_threads(trainer: SceneTrainer):
-    """torch's intra-op threads set to ``optim.num_threads x optim.batch_threads`` (the cores a CPU training
-    step used; the config fixes the count, so reruns repeat bit for bit) while the body runs, then back.
-    Training sets ``num_threads`` per batch part; the post-training work has no parts (a render's chunks
-    run on the part threads), and on one thread the fox capture's walkable map took 57 s instead of 31
-    (2 cores)."""
-    threads = trainer.cfg.optim.num_threads * max(1, trainer.cfg.optim.batch_threads)
-    before = torch.get_num_threads()
-    if trainer.device.type != "cpu" or trainer.cfg.optim.num_threads <= 0 or threads == before:
-        yield
-        return
-    torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def scale_record(trainer: SceneTrainer) -> dict[str, Any]:
@@ -963,7 +945,6 @@ __all__ = [
     "SceneTrainer",
     "TrainResult",
     "TrainSceneConfig",
-    "abs_rel",
     "bake_obstacles",
     "bake_occupancy",
     "export_scene",

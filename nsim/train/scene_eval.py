@@ -48,6 +48,7 @@ from torch import Tensor
 
 from nsim.config import param
 from nsim.fields.encodings import spherical_harmonics
+from nsim.metrics.depth import DepthConfig
 from nsim.rendering.model import SceneModel
 from nsim.rendering.rays import make_rays, rays_from_pixels
 
@@ -299,14 +300,6 @@ def image_scores(pred: np.ndarray, gt: np.ndarray, lpips_net: str, device: str =
     return row
 
 
-def abs_rel(pred_depth: np.ndarray, gt_depth: np.ndarray) -> float:
-    """Mean ``|pred - gt| / gt`` over pixels with finite, positive ground truth (NaN when there are none)."""
-    valid = np.isfinite(gt_depth) & (gt_depth > 0) & np.isfinite(pred_depth)
-    if not valid.any():
-        return math.nan
-    return float(np.mean(np.abs(pred_depth[valid] - gt_depth[valid]) / gt_depth[valid]))
-
-
 def fits_half(model: SceneModel, cfg: EvalConfig, width: int) -> bool:
     """Whether ``final`` scoring fits a held-out appearance code (an embedded model, fit steps, a left half)."""
     return model.field.appearance is not None and cfg.fit_steps > 0 and width // 2 >= 1
@@ -333,11 +326,14 @@ def left_half_fit(model: SceneModel, view: ViewRays, gt: np.ndarray, cfg: EvalCo
 def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: np.ndarray | None, chunk: int,
                cfg: EvalConfig, final: bool, generator: torch.Generator | None = None,
                pool: Executor | None = None, on_render: Callable[[np.ndarray], None] | None = None,
-               code: Tensor | None = None) -> dict[str, Any]:
+               code: Tensor | None = None, depth_cfg: DepthConfig | None = None) -> dict[str, Any]:
     """Scores of one held-out view (see the module docstring); ``final`` adds LPIPS and the half-image
     scores (these need ``generator`` for the fit's pixels, or the fitted ``code (A,)`` itself:
     :func:`score_views` fits many views' codes at once). ``on_render(rgb)``: called with the
-    mean-embedding render (to save it) before it is dropped."""
+    mean-embedding render (to save it) before it is dropped. Depth AbsRel (with ``gt_depth``) is
+    ``nsim.metrics.depth``'s, per view (``view_abs_rel``), with ``depth_cfg``'s bounds in the scene's units
+    (default: the metric's own, in metres)."""
+    from nsim.metrics.depth import view_abs_rel
     from nsim.metrics.image import psnr
 
     device = model.aabb.device
@@ -355,8 +351,9 @@ def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: n
     pred = render_image(model, view, chunk, pool=pool, recolour=code, recolour_from=half)
     row = image_scores(pred["rgb"], gt, cfg.lpips_net if final else "none", str(device))
     if gt_depth is not None:
-        row["abs_rel_expected"] = abs_rel(pred["depth_z"], gt_depth)
-        row["abs_rel_median"] = abs_rel(pred["depth_median_z"], gt_depth)
+        depth_cfg = DepthConfig() if depth_cfg is None else depth_cfg
+        row["abs_rel_expected"] = view_abs_rel(pred["depth_z"], gt_depth, depth_cfg)
+        row["abs_rel_median"] = view_abs_rel(pred["depth_median_z"], gt_depth, depth_cfg)
     if on_render is not None:
         on_render(pred["rgb"])
     if code is not None:
@@ -387,7 +384,9 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
     Returns ``views`` (one row each), ``mean``, ``resolution`` (scored and captured ``[w, h]``) and ``protocol``."""
     from nsim.io.images import to_uint8, write_image
     from nsim.io.labels import add_label
+    from nsim.train.scene_data import units_per_metre
 
+    depth_cfg = DepthConfig().in_units(units_per_metre(data)[0])  # the scene's units, as its training's lengths
     rows = []
     scored = None
     fitting = final and cfg.fit_steps > 0 and model.field.appearance is not None
@@ -416,7 +415,7 @@ def score_views(model: SceneModel, data, views: list[int], cfg: EvalConfig, chun
                                 add_label(np.concatenate([to_uint8(rgb), gt], axis=1),
                                           [f"{data.names[i]} render", "ground truth"]))
             row = score_view(model, view, gt, data.eval_depth_z(i, camera), chunk, cfg, final, fit_generator(int(i)),
-                             pool, save, code=codes.get(i))
+                             pool, save, code=codes.get(i), depth_cfg=depth_cfg)
             rows.append({"frame": int(i), "name": data.names[i], **row})
     fh, fw = data.full_size_hw
     return {"views": rows, "mean": mean_scores(rows),
@@ -438,6 +437,7 @@ def mean_scores(rows: list[dict[str, Any]]) -> dict[str, float]:
 
 def protocol(cfg: EvalConfig, seed_note: str) -> dict[str, str]:
     """eval.json's description of what each score is."""
+    depth = DepthConfig()
     return {
         "psnr, ssim, lpips": "whole held-out image, rendered with the mean appearance embedding of the training images",
         "psnr_half, ssim_half, lpips_half": (f"{PROTOCOL_HALF}: the held-out image's embedding fitted on its left half "
@@ -445,7 +445,11 @@ def protocol(cfg: EvalConfig, seed_note: str) -> dict[str, str]:
                                              f"{cfg.fit_steps} full-batch Adam steps at lr {cfg.fit_lr:g} from the mean "
                                              "embedding, only the embedding trainable), scored on its right half"),
         "psnr_half_mean_embedding": "the same right half rendered with the mean embedding",
-        "abs_rel_expected, abs_rel_median": "z-depth AbsRel against the capture's depth (nearest pixel at the scored size)",
+        "abs_rel_expected, abs_rel_median": ("z-depth AbsRel (nsim.metrics.depth) against the capture's depth "
+                                             "(nearest pixel at the scored size): ground truth in "
+                                             f"[{depth.min_depth_m:g}, {depth.max_depth_m:g}] m, predictions "
+                                             "clamped into that range (for a scene of arbitrary scale, the same "
+                                             "lengths in its units)"),
         "lpips_net": cfg.lpips_net,
     }
 

@@ -142,6 +142,22 @@ def test_resume_is_bit_identical(capture, tmp_path):
     assert other.resumed_from is None
 
 
+def test_training_leaves_the_thread_count_as_it_found_it(capture, tmp_path):
+    """optim.num_threads while the loop (and the export's renders) run, set by the loop; restored after."""
+    torch.set_num_threads(2)
+    seen = []
+    try:
+        trainer = HumanTrainer(capture, micro_cfg(optim={"num_threads": 3}), seed=0)
+        assert torch.get_num_threads() == 2 and trainer.loop_threads() == 3  # building a trainer sets nothing
+        result = train_human(capture, micro_cfg(optim={"steps": 2}), tmp_path / "work", seed=0,
+                             on_log=lambda tr, stats: seen.append(torch.get_num_threads()))
+        assert seen == [1] and torch.get_num_threads() == 2  # the preset's one thread in the loop, then as before
+        export_human(tmp_path / "out", result)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(1)
+
+
 def test_planted_resume_checkpoint_runs_no_code(capture, tmp_path, plant_checkpoint, caplog):
     """A code-running pickle at work_dir/last.pt is refused with a warning; training runs from scratch."""
     cfg = micro_cfg(optim={"steps": 3})

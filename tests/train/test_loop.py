@@ -77,3 +77,58 @@ def test_loop_logs_checkpoints_and_resumes_to_the_same_state(tmp_path):
     assert resumed.history == whole.history
     with pytest.raises(InputError, match="checkpoint was made by another run"):
         _Toy(seed=1).load_checkpoint(ckpt)
+
+
+@dataclass
+class _Threaded(_Toy):
+    """The toy, asking the loop for ``threads`` torch threads; it records the count each step saw, and
+    raises at step ``fail_at`` (a crash mid-run)."""
+
+    threads: int = 0
+    fail_at: int = 0
+    seen: list = field(default_factory=list)
+
+    def loop_threads(self):
+        return self.threads
+
+    def train_step(self):
+        self.seen.append(torch.get_num_threads())
+        if self.fail_at and self.step + 1 == self.fail_at:
+            raise RuntimeError("crash")
+        return super().train_step()
+
+
+@pytest.fixture
+def one_thread():
+    """torch at one thread for the test, and the process's own count afterwards."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_loop_sets_the_trainers_threads_once_and_restores_them(tmp_path, one_thread):
+    trainer = _Threaded(threads=3)
+    train_loop(trainer, 5, 2, 10, tmp_path / "a.pt", "toy")
+    assert trainer.seen == [3] * 5 and torch.get_num_threads() == 1  # every step at 3; afterwards as before
+    crashed = _Threaded(threads=3, fail_at=2)
+    with pytest.raises(RuntimeError, match="crash"):
+        train_loop(crashed, 5, 2, 10, tmp_path / "b.pt", "toy")
+    assert crashed.seen == [3, 3] and torch.get_num_threads() == 1  # restored when a step raises too
+    untouched = _Threaded(threads=0)  # 0: torch's count is left as it is (a GPU trainer)
+    train_loop(untouched, 2, 2, 10, tmp_path / "c.pt", "toy")
+    assert untouched.seen == [1, 1] and torch.get_num_threads() == 1
+    assert _Toy().loop_threads() == 0  # the base class asks for nothing
+
+
+def test_torch_threads_restores_what_the_body_changed(one_thread):
+    from nsim.train.loop import torch_threads
+
+    with torch_threads(2):
+        assert torch.get_num_threads() == 2
+        torch.set_num_threads(4)
+    assert torch.get_num_threads() == 1
+    with torch_threads(0):
+        assert torch.get_num_threads() == 1
+        torch.set_num_threads(3)
+    assert torch.get_num_threads() == 1

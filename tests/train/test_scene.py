@@ -110,6 +110,27 @@ def test_resume_from_an_older_checkpoint_in_process(tiny_data, tmp_path):
         assert torch.equal(va, vb), k
 
 
+def test_training_leaves_the_thread_count_as_it_found_it(tiny_data, tmp_path):
+    """The loop holds num_threads x batch_threads torch threads (the parts' worker threads keep num_threads
+    each), set once; building a trainer, the steps and the export leave the count as they found it."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    seen = []
+    try:
+        cfg = micro_cfg(optim={"steps": 2, "batch_threads": 2}, output={"log_every": 1, "final_eval_views": 1},
+                        eval={"fit_steps": 5})
+        assert SceneTrainer(tiny_data, micro_cfg(optim={"num_threads": 3}), seed=0).loop_threads() == 3
+        assert torch.get_num_threads() == 1  # building a trainer sets nothing
+        result = train_scene(tiny_data, cfg, tmp_path / "work", seed=0,
+                             on_log=lambda tr, stats: seen.append(torch.get_num_threads()))
+        assert result.trainer.loop_threads() == 2 and seen == [2, 2]  # 1 thread x 2 parts, every step
+        assert torch.get_num_threads() == 1
+        export_scene(tmp_path / "out", result)
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_checkpoint_of_another_run_is_not_resumed(tiny_data, tmp_path):
     train_scene(tiny_data, micro_cfg(optim={"steps": 3}), tmp_path, seed=0)
     other = train_scene(tiny_data, micro_cfg(optim={"steps": 3}), tmp_path, seed=1)

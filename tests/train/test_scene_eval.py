@@ -132,6 +132,49 @@ def test_views_fitted_together_get_their_separate_fits_codes(trained):
         fit_codes(fits[:2], targets[:1], mean, 1, 0.05)
 
 
+def test_view_abs_rel_scores_what_a_view_has():
+    """The held-out views' AbsRel (nsim.metrics.depth.view_abs_rel): the metric's own rule (ground truth in
+    [1 mm, 10 m], predictions clamped there), pixels without a rendered depth left out, NaN for a view
+    with nothing to score; ``DepthConfig.in_units``: the same bounds in a scene's own units."""
+    from nsim.errors import InputError
+    from nsim.metrics.depth import DepthConfig, abs_rel, view_abs_rel
+
+    gt = np.array([[1.0, 2.0], [4.0, 20.0]])  # 20 m: beyond the bound, never scored
+    pred = np.array([[1.1, np.nan], [5.0, 30.0]])  # NaN: nothing rendered there
+    assert view_abs_rel(pred, gt) == pytest.approx((0.1 + 0.25) / 2, abs=1e-15)
+    clamped = np.array([[1.1, 2.0], [12.0, 1.0]])  # 12 m counts as 10 m
+    assert view_abs_rel(clamped, gt) == pytest.approx((0.1 + 0.0 + 1.5) / 3, abs=1e-15)
+    assert view_abs_rel(clamped, gt) == abs_rel(clamped, gt)  # the one definition
+    assert np.isnan(view_abs_rel(np.full((2, 2), np.nan), gt))  # nothing rendered
+    assert np.isnan(view_abs_rel(pred, np.full((2, 2), np.nan)))  # no ground truth
+    with pytest.raises(InputError, match="differ in size"):
+        view_abs_rel(pred[:1], gt)
+    tens = DepthConfig().in_units(0.1)  # a scene in units of 10 m
+    assert (tens.min_depth_m, tens.max_depth_m) == (pytest.approx(1e-4), pytest.approx(1.0))
+    assert view_abs_rel(pred / 10, gt / 10, tens) == pytest.approx(view_abs_rel(pred, gt), abs=1e-12)
+    with pytest.raises(ValueError, match="units_per_m"):
+        DepthConfig().in_units(0.0)
+
+
+def test_held_out_depth_abs_rel_is_the_depth_metric(trained):
+    """score_view's AbsRel is nsim.metrics.depth's: ground truth beyond its 10 m bound does not count
+    (the rule the trainer once had of its own, any positive ground truth, would count it)."""
+    from nsim.metrics.depth import DepthConfig, abs_rel
+    from nsim.train.scene_eval import score_view
+
+    i = int(trained.eval_ids[1])
+    camera = trained.data.eval_camera(i, 0)
+    view = trained.view_rays(i, camera)
+    gt = trained.data.eval_depth_z(i, camera).astype(np.float64)
+    gt[: gt.shape[0] // 4] = 50.0  # a far wall: beyond the metric's bound
+    row = score_view(trained.model, view, trained.data.eval_image(i, camera), gt, 500, trained.cfg.eval, False)
+    pred = render_image(trained.model, view, 500)
+    for key, depth in (("abs_rel_median", pred["depth_median_z"]), ("abs_rel_expected", pred["depth_z"])):
+        assert row[key] == pytest.approx(abs_rel(depth, gt, DepthConfig(), ~np.isnan(depth)), rel=1e-12), key
+        old = np.isfinite(gt) & (gt > 0) & np.isfinite(depth)
+        assert abs(row[key] - float(np.mean(np.abs(depth[old] - gt[old]) / gt[old]))) > 0.05, key
+
+
 def test_eval_json_scores_the_asked_resolution_and_the_half_protocol(tiny_data, tmp_path):
     cfg = micro_cfg(optim={"steps": 3}, output={"final_eval_views": 2}, eval={"image_side": 32, "fit_steps": 20})
     result = train_scene(tiny_data, cfg, tmp_path / "work", seed=0)
