@@ -20,7 +20,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
     "--sweep",
     "sweep_file",
     default=None,
-    help="Sweep file (YAML): seeds x crowd sizes x behaviours over a scenario.",
+    help="Sweep file (YAML): seeds x crowd sizes x behaviours x controllers over a scenario.",
 )
 @click.option(
     "--summary",
@@ -76,7 +76,7 @@ def command(
         out = simulate.run(simulate.Inputs(sc), cfg, ctx)
         report_artifact(ctx, out.trajectory, out.cache_hit, tag)
         return
-    from nsim.crowd.run_output import sweep_table_markdown
+    from nsim.crowd.run_output import controller_table_markdown, sweep_table_markdown
     from nsim.crowd.sweep import load_sweep
 
     spec, scenario_path = load_sweep(sweep_file)
@@ -85,6 +85,8 @@ def command(
         for k, r in enumerate(rows):
             ctx.store.set_ref(f"{tag}/{k}", r["trajectory"])
     table = sweep_table_markdown(rows)
+    if len(spec.controllers) > 1:
+        table += "\n" + controller_table_markdown(rows)
     click.echo(table, nl=False)
     cached = sum(r["cache_hit"] for r in rows)
     click.echo(f"sweep: {len(rows)} trajectories ({cached} cached)", err=True)

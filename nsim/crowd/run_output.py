@@ -3,7 +3,8 @@ picture and a video (``nsim simulate``'s artifact; the stage reads inputs, runs,
 and a sweep's summary table.
 
 ``robot_goal_m(sc)``: the robot's goal for the metrics; ``run_metrics(sc, sim, forces)``: metrics.json's
-content; ``sweep_table_markdown(rows)``: the sweep's table, every metric of every cell.
+content; ``sweep_table_markdown(rows)``: the sweep's table, every metric of every cell;
+``controller_table_markdown(rows)``: the controllers side by side (means over their cells).
 
 ``write_trajectory(out_dir, sc, sim, metrics, cfg)``: ``trajectory.npz`` (byte-identical across runs),
 TUM files of the robot and each human, ``scenario.json``, ``occupancy.json``, ``metrics.json``,
@@ -81,17 +82,24 @@ def run_metrics(sc, sim, forces) -> dict[str, Any]:
     everyone, by_behaviour = crowd_metrics_breakdown(
         sim.crowd, walls_m=sim.walls_m, forces=forces, robot_goal_m=robot_goal_m(sc)
     )
+    run = {
+        "scenario": sc.name,
+        "humans": len(sc.humans),
+        "ticks": len(sim.time_s),
+        "dt_s": sim.dt_s,
+        "duration_s": float(sim.time_s[-1]),
+        "humans_reacting_at_some_tick": int(np.any(sim.crowd.behaviour_state == 1, axis=0).sum()),
+    }
+    if sim.robot_command_body is not None:  # a controller drove the robot (replay runs keep their bytes)
+        from nsim.crowd.controllers import controller_label
+
+        clamped = np.linalg.norm(sim.robot_command_body - sim.robot_executed_body, axis=1) > 1e-9
+        run["controller"] = controller_label(sc.robot.controller)
+        run["ticks_command_not_executed"] = int(clamped.sum())
     return {
         "hunav": _json_metrics(everyone),
         "hunav_by_behaviour": {name: _json_metrics(m) for name, m in by_behaviour.items()},
-        "run": {
-            "scenario": sc.name,
-            "humans": len(sc.humans),
-            "ticks": len(sim.time_s),
-            "dt_s": sim.dt_s,
-            "duration_s": float(sim.time_s[-1]),
-            "humans_reacting_at_some_tick": int(np.any(sim.crowd.behaviour_state == 1, axis=0).sum()),
-        },
+        "run": run,
     }
 
 
@@ -101,7 +109,7 @@ def sweep_table_markdown(rows: list[dict[str, Any]]) -> str:
     from nsim.crowd.metrics import CrowdMetrics
 
     keys = [f.name for f in dataclasses.fields(CrowdMetrics)]
-    head = ["seed", "extra", "behaviours", "humans", "trajectory", *keys]
+    head = ["seed", "extra", "behaviours", "controller", "humans", "trajectory", *keys]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
 
     def cell(v: Any) -> str:
@@ -113,8 +121,39 @@ def sweep_table_markdown(rows: list[dict[str, Any]]) -> str:
 
     for r in rows:
         m, g = r["metrics"], r["grid"]
-        grid = [str(g["seed"]), str(g["extra_people"]), ",".join(g["behaviours"]), str(r["humans"])]
+        grid = [
+            str(g["seed"]),
+            str(g["extra_people"]),
+            ",".join(g["behaviours"]),
+            g.get("controller", "replay"),
+            str(r["humans"]),
+        ]
         lines.append("| " + " | ".join([*grid, r["trajectory"][:12], *(cell(m[k]) for k in keys)]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def controller_table_markdown(rows: list[dict[str, Any]]) -> str:
+    """Controllers side by side, as Markdown: one column per controller (grid order), one row per
+    metric of metrics.json's ``hunav``, each the mean over that controller's cells (the same seeds
+    and crowds for all; yes/no metrics as the fraction of cells with yes; undefined values left
+    out, ``n/a`` when no cell defines it), and the number of cells."""
+    from nsim.crowd.metrics import CrowdMetrics
+
+    names: list[str] = []
+    for r in rows:
+        c = r["grid"].get("controller", "replay")
+        if c not in names:
+            names.append(c)
+    keys = [f.name for f in dataclasses.fields(CrowdMetrics)]
+    lines = ["| metric | " + " | ".join(names) + " |", "|---|" + "|".join("---" for _ in names) + "|"]
+    by_name = {c: [r["metrics"] for r in rows if r["grid"].get("controller", "replay") == c] for c in names}
+    lines.append("| cells | " + " | ".join(str(len(by_name[c])) for c in names) + " |")
+    for k in keys:
+        cells = []
+        for c in names:
+            values = [float(m[k]) for m in by_name[c] if m.get(k) is not None]
+            cells.append(format(sum(values) / len(values), ".4g") if values else "n/a")
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -138,6 +177,9 @@ def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg) -> No
             "behaviour_names": np.array(BEHAVIOUR_NAMES, dtype=str),
         }
     )
+    if sim.robot_command_body is not None:
+        arrays["robot_command_body"] = sim.robot_command_body
+        arrays["robot_executed_body"] = sim.robot_executed_body
     save_npz_deterministic(out_dir / "trajectory.npz", arrays)
     write_tum(out_dir / "robot.tum", Trajectory.from_poses(sim.time_s, sim.robot_pose_se3))
     (out_dir / "humans").mkdir()

@@ -38,6 +38,12 @@ Robot (body frame: x forward, y left, z up; ``RobotSpec``)
     Waypoint paths face along the path (``nsim.crowd.paths.waypoint_poses``). The body sits
     ``body_height_m`` above the floor. The humans see the robot as a capsule: the segment
     ``+- half_length_m`` along its heading grown by ``radius_m`` (Spot: 0.3 and 0.28, 1.16 m x 0.56 m).
+    ``controller`` (left out: ``replay``, the trajectory as given) hands the robot to ``social_force``,
+    ``orca`` or a user's class ``{"python": "module:Class" | "file.py:Class", "params": {...}}``,
+    which head for the trajectory's waypoints (or poses' positions) in turn within ``limits``
+    (``max_speed_mps``, ``max_yaw_rate_radps``; Spot's by default) and see the people within
+    ``sensor_range_m`` (``nsim.crowd.controllers``). A user's class is imported when the scenario is
+    read (errors name ``robot.controller.python``); a file's path is stored absolute with its SHA-256.
 Humans (``HumanSpec``)
     Start, waypoints walked in straight lines (``loop``: a waypoint loop, else a goal list ending at
     the last), behaviour, walking-group id, body height and radius, desired speed, motion clip name
@@ -62,6 +68,7 @@ from typing import Any
 import numpy as np
 
 from nsim.config import canonical_json, configs_dir
+from nsim.crowd.controllers import SENSOR_RANGE_M, RobotLimits, resolve_python_spec
 from nsim.crowd.neighbours import points_in_polygons, segments_from_polygons
 from nsim.crowd.paths import clearance_m, enclosed, leg_crossings, ring_problem, waypoint_poses, yaw_of_poses
 from nsim.crowd.schema import SchemaValidator, SchemaViolation, describe, format_path
@@ -180,6 +187,12 @@ class RobotSpec:
     sample_times_s: (S,) strictly increasing; sample_poses_se3: (S, 4, 4) body-to-world, body axes
     x forward, y left, z up. ``poses_at`` interpolates them (positions linearly, rotations by
     slerp) and holds the first / last pose outside their span.
+
+    controller: ``"replay"`` (follow the poses), ``"social_force"``, ``"orca"`` or a resolved
+    ``{"python", "params", ...}`` entry (``nsim.crowd.controllers``); limits, sensor_range_m: for a
+    controller. goals_m: (G, 2) the goals a controller heads for in turn (the trajectory's waypoints,
+    or its poses' positions), cycled when goals_loop; speed_mps: its cruising speed (the waypoint
+    trajectory's, else 1 m/s).
     """
 
     name: str
@@ -188,6 +201,12 @@ class RobotSpec:
     body_height_m: float
     sample_times_s: np.ndarray
     sample_poses_se3: np.ndarray
+    controller: str | Mapping[str, Any] = "replay"
+    limits: RobotLimits = RobotLimits()
+    sensor_range_m: float = SENSOR_RANGE_M
+    goals_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    goals_loop: bool = False
+    speed_mps: float = 1.0
 
     def poses_at(self, times_s: np.ndarray) -> np.ndarray:
         """Body-to-world poses ``(T, 4, 4)`` at ``times_s (T,)``."""
@@ -348,6 +367,7 @@ def parse_scenario(data: Any, *, source: str, base_dir: Path | None = None) -> S
     d.pop("$schema", None)
     spec = ScenarioSpec(source, d, base_dir)
     _inline_tum(spec, d)
+    _check_controller(spec, d)
     _check_humans(spec, d)
     _check_poses(spec, d)
     return spec
@@ -375,6 +395,19 @@ def _inline_tum(spec: ScenarioSpec, d: dict) -> None:
             for ti, p, q in zip(t, tum.positions_xyz, tum.orientations_quat_wxyz, strict=True)
         ]
     }
+
+
+def _check_controller(spec: ScenarioSpec, d: dict) -> None:
+    """A user's controller class imported and checked (``nsim.crowd.controllers``); a file's path made
+    absolute and its SHA-256 recorded (in place); a recorded SHA-256 must match the file."""
+    entry = d["robot"].get("controller")
+    if not isinstance(entry, dict):
+        return
+    where = ("robot", "controller", "python")
+    resolved = resolve_python_spec(entry["python"], spec.base_dir, lambda m: spec.error(where, m))
+    if "code_sha256" in entry and entry["code_sha256"] != resolved.get("code_sha256"):
+        raise spec.error(("robot", "controller", "code_sha256"), "does not match the controller file's content")
+    entry.update(resolved)
 
 
 def _check_humans(spec: ScenarioSpec, d: dict) -> None:
@@ -487,6 +520,31 @@ def polygon_map(scene: Mapping[str, Any], fail: Fail) -> SceneMap:
 # Step 2: on the resolved map
 
 
+def nav2_scene(spec: ScenarioSpec) -> dict[str, Any]:
+    """A ``{"nav2_map": PATH}`` scene as the ``{"polygons", "holes"}`` entry the scenario stores.
+
+    The map (``nsim.io.nav2.read_nav2_map``) is traced as nsim traces its own obstacle maps
+    (``nsim.rendering.occupancy.regions_from_mask``): occupied cells, unknown ones unless
+    ``unknown: free``, and a one-cell border around the raster (nobody walks off the map) are obstacles.
+    """
+    from nsim.io.nav2 import CELL_OCCUPIED, CELL_UNKNOWN, read_nav2_map
+    from nsim.rendering.occupancy import regions_from_mask
+
+    scene, where = spec.scene, ("scene", "nav2_map")
+    path = spec.file(where, scene["nav2_map"], "a nav2 map")
+    try:
+        grid = read_nav2_map(path)
+    except InputError as exc:
+        raise spec.error(where, str(exc)) from None
+    blocked = grid.cells == CELL_OCCUPIED
+    if scene["unknown"] == "obstacle":
+        blocked |= grid.cells == CELL_UNKNOWN
+    res = grid.resolution_m
+    origin = (grid.origin_xy_m[0] - res, grid.origin_xy_m[1] - res)
+    regions = regions_from_mask(np.pad(blocked, 1, constant_values=True), origin, res)
+    return polygon_scene([r.outer_m for r in regions], [r.holes_m for r in regions])
+
+
 def resolve_scenario(spec: ScenarioSpec, scene_map: SceneMap) -> Scenario:
     """The scenario on its map (step 2): the walk loop expanded, the canonical content, the free-space checks."""
     d = copy.deepcopy(dict(spec.data))
@@ -554,6 +612,11 @@ def _robot_spec(d: dict) -> RobotSpec:
             d["duration_s"],
             r["body_height_m"],
         )
+    if "waypoints_m" in traj:
+        goals = np.array(traj["waypoints_m"], dtype=np.float64).reshape(-1, 2)
+        goals_loop, speed = bool(traj["loop"]), float(traj["speed_mps"])
+    else:
+        goals, goals_loop, speed = poses[:, :2, 3].copy(), False, 1.0
     return RobotSpec(
         name=r["name"],
         radius_m=float(r["radius_m"]),
@@ -561,6 +624,12 @@ def _robot_spec(d: dict) -> RobotSpec:
         body_height_m=float(r["body_height_m"]),
         sample_times_s=times,
         sample_poses_se3=poses,
+        controller=copy.deepcopy(r.get("controller", "replay")),
+        limits=RobotLimits(**r.get("limits", {})),
+        sensor_range_m=float(r.get("sensor_range_m", SENSOR_RANGE_M)),
+        goals_m=goals,
+        goals_loop=goals_loop,
+        speed_mps=speed,
     )
 
 

@@ -1,4 +1,4 @@
-"""Sweep files (a grid of seeds x crowd sizes x behaviour sets over one scenario) and their summary table.
+"""Sweep files (a grid of seeds x crowd sizes x behaviour sets x robot controllers over one scenario) and their summary table.
 
 ``load_sweep`` reads and checks the file; the simulate stage runs one trajectory per grid cell
 (``nsim.stages.simulate.run_sweep``); ``nsim.crowd.run_output.sweep_table_markdown`` prints the rows it returns.
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 from nsim.config import from_dict, param, read_yaml
 from nsim.crowd.behaviours import BEHAVIOUR_NAMES
@@ -21,7 +22,10 @@ class SweepSpec:
     scenario: the base scenario file, relative to the sweep file. seeds: scenario seeds.
     crowd_sizes: how many extra people to spawn in free space (0 = the scenario as it is).
     behaviours: behaviour sets the extra people's behaviours are drawn from; each a name or a list
-    of names. keep_scenario_humans: false drops the scenario's own people.
+    of names. keep_scenario_humans: false drops the scenario's own people. controllers: the
+    robot's ``robot.controller`` per cell (``nsim.crowd.controllers``: ``replay``, ``social_force``,
+    ``orca`` or ``{python: "file.py:Class", params: {...}}``, a file relative to the sweep file);
+    every controller runs on the same seeds and crowds.
     """
 
     scenario: str = param(help="base scenario file, relative to the sweep file")
@@ -29,6 +33,7 @@ class SweepSpec:
     crowd_sizes: tuple[int, ...] = param((0,))
     behaviours: tuple[str | tuple[str, ...], ...] = param(("regular",))
     keep_scenario_humans: bool = True
+    controllers: tuple[Any, ...] = param(("replay",), help="robot.controller entries compared on the same cells")
 
 
 def load_sweep(path: str | Path) -> tuple[SweepSpec, Path]:
@@ -52,4 +57,16 @@ def load_sweep(path: str | Path) -> tuple[SweepSpec, Path]:
         for name in names or ("[]",):
             if name not in BEHAVIOUR_NAMES:
                 raise InputError(f"{path}: behaviours[{k}]: {name!r} is not one of {', '.join(BEHAVIOUR_NAMES)}")
+    if not spec.controllers:
+        raise InputError(f"{path}: controllers: expected at least one controller")
+    resolved = []
+    for k, c in enumerate(spec.controllers):
+        if isinstance(c, dict) and isinstance(c.get("python"), str):
+            module, _, cls = c["python"].rpartition(":")
+            if module.endswith(".py") and not Path(module).is_absolute():
+                c = {**c, "python": f"{(path.parent / module).resolve()}:{cls}"}
+        elif not isinstance(c, str):
+            raise InputError(f"{path}: controllers[{k}]: expected a name or {{python: 'module:Class'}}, got {c!r}")
+        resolved.append(c)
+    spec = dataclasses.replace(spec, controllers=tuple(resolved))
     return spec, (path.parent / spec.scenario)

@@ -31,6 +31,12 @@ Artifact layout (``T`` ticks at ``t_k = k dt_s``, ``N`` humans)::
 ``behaviour (N,)`` int8 codes, ``group_id (N,)``, the robot as the crowd saw it) plus
 ``robot_pose_se3 (T, 4, 4)``, ``human_ids (N,)``, ``height_m (N,)``, ``motion (N,)``,
 ``appearance (N,)`` (``""`` = default look) and ``behaviour_names (6,)`` (code k at index k - 1).
+When a controller drives the robot (the scenario's ``robot.controller``, ``nsim.crowd.controllers``)
+it also holds ``robot_command_body (T - 1, 3)``, the command issued at tick k as the controller
+returned it, and ``robot_executed_body (T - 1, 3)``, the motion from tick k to k + 1 (clamped to the
+robot's limits, stopped by walls), both ``(vx_mps, vy_mps, yaw_rate_radps)`` in the body frame at
+tick k; metrics.json's ``run`` names the controller and counts the ticks whose command was not
+executed as given. A replayed robot's artifact has neither (its bytes are those of earlier versions).
 """
 
 from __future__ import annotations
@@ -39,8 +45,6 @@ import dataclasses
 import json
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
@@ -51,16 +55,16 @@ from nsim.crowd.scenario import (
     Scenario,
     ScenarioSpec,
     SceneMap,
+    nav2_scene,
     parse_scenario,
     polygon_map,
-    polygon_scene,
     read_occupancy,
     read_scenario,
     resolve_scenario,
 )
 from nsim.crowd.social_force import ForceParams
 from nsim.crowd.sweep import SweepSpec
-from nsim.errors import InputError, NsimError
+from nsim.errors import NsimError
 
 STAGE = "simulate"
 VERSION = 3  # 2: run.mp4 in H.264 (was MPEG-4 Part 2), frames under a label strip; 3: HuNavSim metrics
@@ -125,31 +129,6 @@ def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
         if why:
             raise spec.error(where, f"scene-checkpoint {art_id[:12]} has no walkable map: {why}")
     return SceneMap({"checkpoint": art_id}, *read_occupancy(occ, f"scene.checkpoint {ref!r}", spec.error))
-
-
-def nav2_scene(spec: ScenarioSpec) -> dict[str, Any]:
-    """A ``{"nav2_map": PATH}`` scene as the ``{"polygons", "holes"}`` entry the scenario stores.
-
-    The map (``nsim.io.nav2.read_nav2_map``) is traced as nsim traces its own obstacle maps
-    (``nsim.rendering.occupancy.regions_from_mask``): occupied cells, unknown ones unless
-    ``unknown: free``, and a one-cell border around the raster (nobody walks off the map) are obstacles.
-    """
-    from nsim.io.nav2 import CELL_OCCUPIED, CELL_UNKNOWN, read_nav2_map
-    from nsim.rendering.occupancy import regions_from_mask
-
-    scene, where = spec.scene, ("scene", "nav2_map")
-    path = spec.file(where, scene["nav2_map"], "a nav2 map")
-    try:
-        grid = read_nav2_map(path)
-    except InputError as exc:
-        raise spec.error(where, str(exc)) from None
-    blocked = grid.cells == CELL_OCCUPIED
-    if scene["unknown"] == "obstacle":
-        blocked |= grid.cells == CELL_UNKNOWN
-    res = grid.resolution_m
-    origin = (grid.origin_xy_m[0] - res, grid.origin_xy_m[1] - res)
-    regions = regions_from_mask(np.pad(blocked, 1, constant_values=True), origin, res)
-    return polygon_scene([r.outer_m for r in regions], [r.holes_m for r in regions])
 
 
 def load_scenario(path: str | Path, store=None) -> Scenario:
@@ -230,33 +209,49 @@ def sweep_items(spec: SweepSpec, scenario_path: Path, cfg: Config, ctx: RunConte
     The scenarios are built and validated here, in the driver, so a bad sweep fails before any
     work is sent out; workers only re-read the canonical content.
     """
+    from nsim.crowd.controllers import controller_label
+
     base = load_scenario(scenario_path, store=ctx.store)
     items = []
     for seed in spec.seeds:
         for size in spec.crowd_sizes:
             for b_idx, b in enumerate(spec.behaviours):
                 names = (b,) if isinstance(b, str) else tuple(b)
-                data = base.data
-                data["seed"] = int(seed)
-                if not spec.keep_scenario_humans:
-                    data["humans"] = []
-                # with no extra people the behaviour set plays no part: those cells share one scenario
-                data["name"] = f"{base.name[:40]}.s{seed}.n{size}" + (f".b{b_idx}" if size else "")
-                cell = parse_scenario(data, source=f"{scenario_path} (seed {seed})")
-                sc = resolve_scenario(cell, base.scene_map)
-                rng = ctx.rng(f"simulate.sweep.spawn.{seed}.{size}.{'+'.join(names)}")
-                sc = spawn_extra_humans(sc, size, names, rng)
-                items.append(
-                    {
-                        "workspace": str(ctx.store.root),
-                        "seed": ctx.seed,
-                        "force": ctx.force,
-                        "config": to_dict(cfg),
-                        "scenario": sc.data,
-                        "source": sc.source,
-                        "grid": {"seed": int(seed), "extra_people": int(size), "behaviours": list(names)},
-                    }
-                )
+                for c_idx, controller in enumerate(spec.controllers):
+                    data = base.data
+                    data["seed"] = int(seed)
+                    if not spec.keep_scenario_humans:
+                        data["humans"] = []
+                    if controller != "replay":  # replay cells keep the scenario as it is (same ids)
+                        data["robot"]["controller"] = controller
+                    # with no extra people the behaviour set plays no part: those cells share one scenario
+                    data["name"] = (
+                        f"{base.name[:40]}.s{seed}.n{size}"
+                        + (f".b{b_idx}" if size else "")
+                        + (f".c{c_idx}" if controller != "replay" else "")
+                    )
+                    source = f"{scenario_path} (seed {seed}, controllers[{c_idx}])"
+                    cell = parse_scenario(data, source=source)
+                    sc = resolve_scenario(cell, base.scene_map)
+                    # the same extra people for every controller
+                    rng = ctx.rng(f"simulate.sweep.spawn.{seed}.{size}.{'+'.join(names)}")
+                    sc = spawn_extra_humans(sc, size, names, rng)
+                    items.append(
+                        {
+                            "workspace": str(ctx.store.root),
+                            "seed": ctx.seed,
+                            "force": ctx.force,
+                            "config": to_dict(cfg),
+                            "scenario": sc.data,
+                            "source": sc.source,
+                            "grid": {
+                                "seed": int(seed),
+                                "extra_people": int(size),
+                                "behaviours": list(names),
+                                "controller": controller_label(controller),
+                            },
+                        }
+                    )
     return items
 
 

@@ -3,7 +3,12 @@
 Input: a capture artifact made with ``nsim capture synth --actor`` (the test room with a walking
 person), or a folder in the documented human data format (docs/human_data.md: transforms.json +
 images, ``poses.json`` or ``poses.bvh`` aligned to the frames, ``masks/``) so a lab can bring its
-own pose estimator; a folder's files are digested into the action key. Optionally a scene
+own pose estimator; a folder's files are digested into the action key. Or a video (``--video``) or a
+folder of frames (``--images``) of one person in front of a static camera: masks, a metric camera and
+per-frame skeleton poses are found automatically and offline (``nsim.train.human_data_video``, which
+needs the ``nsim[people]`` extra), written as that format under ``tmp/``, then trained on as above;
+the artifact then also holds ``person.bvh`` (the person's own motion) and ``person_fit.json``
+(camera height, bone lengths, frames dropped). Optionally a scene
 checkpoint: then training composites the person over the scene NeRF's samples along the same
 rays (as the paper, the scene is trained first); otherwise over the capture's background images
 (``background/``) when present, else the frames themselves outside the mask.
@@ -31,6 +36,7 @@ from nsim.config import from_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.train.human import TrainHumanConfig
+from nsim.train.human_data_video import PERSON_BVH_FILE, PERSON_FIT_FILE, PersonSource, prepare_person_data
 
 STAGE = "train_human"
 VERSION = 2  # 2: held-out comparisons under a label strip (render | ground truth)
@@ -39,12 +45,14 @@ Config = TrainHumanConfig
 
 @dataclasses.dataclass(frozen=True)
 class Inputs:
-    """capture: a capture artifact with a person; folder: human data on disk (one of the two);
-    scene: an optional scene-checkpoint for the background."""
+    """capture: a capture artifact with a person; folder: human data on disk; person: a video or a
+    folder of frames of a person (``nsim.train.human_data_video.PersonSource``: masks and poses are
+    found automatically); exactly one of the three. scene: an optional scene-checkpoint for the background."""
 
     capture: str | None = None
     folder: Path | None = None
     scene: str | None = None
+    person: PersonSource | None = None
 
     def ids(self) -> dict[str, str]:
         out = {}
@@ -74,9 +82,15 @@ def _digest_dir(path: Path) -> str:
 
 def resolve(inputs: Inputs, ctx: RunContext) -> tuple[Inputs, Path]:
     store = ctx.store
-    if (inputs.capture is None) == (inputs.folder is None):
-        raise InputError("train-human: give exactly one of --capture (an artifact) or --data (a folder)")
-    if inputs.capture is not None:
+    if sum(x is not None for x in (inputs.capture, inputs.folder, inputs.person)) != 1:
+        raise InputError("train-human: give exactly one of --capture (an artifact), --data (a folder), "
+                         "--video or --images (a person)")
+    if inputs.person is not None:
+        root, capture = inputs.person.path, None
+        if not (root.is_file() if inputs.person.kind == "video" else root.is_dir()):
+            what = "file" if inputs.person.kind == "video" else "folder"
+            raise InputError(f"--{inputs.person.kind} {root}: no such {what}")
+    elif inputs.capture is not None:
         art = store.get(store.resolve(inputs.capture, kind="capture"))
         if not (art.path / "poses.json").is_file():
             raise InputError(f"--capture {inputs.capture}: capture {art.short} has no person (poses.json); "
@@ -88,13 +102,19 @@ def resolve(inputs: Inputs, ctx: RunContext) -> tuple[Inputs, Path]:
             raise InputError(f"--data {root}: no such folder")
         capture = None
     scene = store.resolve(inputs.scene, kind="scene-checkpoint") if inputs.scene else None
-    return Inputs(capture=capture, folder=inputs.folder, scene=scene), root
+    return Inputs(capture=capture, folder=inputs.folder, scene=scene, person=inputs.person), root
 
 
 def action_key(inputs: Inputs, root: Path, cfg: Config, ctx: RunContext) -> str:
+    from nsim.workspace.store import sha256_file
+
     extra: dict[str, Any] = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
     if inputs.folder is not None:
         extra["data_digest"] = _digest_dir(root)
+    if inputs.person is not None:
+        p = inputs.person
+        extra["person_digest"] = sha256_file(root)[0] if p.kind == "video" else _digest_dir(root)
+        extra["person"] = {k: v for k, v in dataclasses.asdict(p).items() if k != "path"}
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
@@ -120,6 +140,11 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     key = action_key(inputs, root, cfg, ctx)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(human=hit.id, cache_hit=True)
+    person_report = None
+    if inputs.person is not None:  # masks and poses found in the frames, written as a human data folder
+        root = store.root / "tmp" / f"{STAGE}.{key[:24]}.person"
+        shutil.rmtree(root, ignore_errors=True)
+        person_report = prepare_person_data(inputs.person, root)
     data = load_data(root)
     background_model = None
     if inputs.scene is not None:
@@ -132,13 +157,21 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     with store.publish(kind="human-checkpoint", stage=STAGE, version=VERSION, key=key, config=cfg,
                        inputs=inputs.ids(), seed=ctx.seed) as out:
         summary = export_human(out.dir, result)
-        out.summary.update({"frames": int(data.n_frames), "source": "capture" if inputs.capture else str(root),
+        if person_report is not None:
+            shutil.copy2(root / PERSON_BVH_FILE, out.dir / PERSON_BVH_FILE)
+            shutil.copy2(root / PERSON_FIT_FILE, out.dir / PERSON_FIT_FILE)
+            out.summary["person"] = {k: person_report[k] for k in ("frames_kept", "camera_height_m", "height_m",
+                                                                   "dropped")}
+        source = "capture" if inputs.capture else str(inputs.person.path if inputs.person else root)
+        out.summary.update({"frames": int(data.n_frames), "source": source,
                             "background": "scene" if inputs.scene else ("images" if data.background is not None
                                                                         else "frames"),
                             **summary})
         if getattr(result, "resumed_from", None) is not None:
             out.timing["resumed_from_step"] = result.resumed_from
     shutil.rmtree(work, ignore_errors=True)
+    if inputs.person is not None:
+        shutil.rmtree(root, ignore_errors=True)
     return Outputs(human=out.ref, resumed_from=getattr(result, "resumed_from", None))
 
 

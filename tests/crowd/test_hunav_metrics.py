@@ -314,7 +314,8 @@ def test_metrics_json_per_behaviour_and_sweep_table():
     loop = {"waypoints_m": [[-2, 0], [2, 0]], "speed_mps": 2.0, "loop": True}
     sc = SimpleNamespace(name="pass", humans=[1, 2], data={"robot": {"trajectory": loop}})
     crowd = passing_robot(behaviour=[1, 4])
-    sim = SimpleNamespace(time_s=crowd.time_s, dt_s=0.5, crowd=crowd, walls_m=np.zeros((0, 2, 2)))
+    sim = SimpleNamespace(time_s=crowd.time_s, dt_s=0.5, crowd=crowd, walls_m=np.zeros((0, 2, 2)),
+                          robot_command_body=None, robot_executed_body=None)
     record = json.loads(json.dumps(run_metrics(sc, sim, ForceParams()), allow_nan=False))
     hunav = record["hunav"]
     assert list(hunav) == [f.name for f in dataclasses.fields(CrowdMetrics)]
@@ -341,11 +342,12 @@ def test_metrics_json_per_behaviour_and_sweep_table():
     done = dict(hunav, completed=True)
     table = sweep_table_markdown([row, dict(row, metrics=done)]).splitlines()
     head = [c.strip() for c in table[0].strip("|").split("|")]
-    assert head == ["seed", "extra", "behaviours", "humans", "trajectory", *hunav]
+    assert head == ["seed", "extra", "behaviours", "controller", "humans", "trajectory", *hunav]
     cells = [
         dict(zip(head, (c.strip() for c in line.strip("|").split("|")), strict=True)) for line in table[2:]
     ]
     assert [c["completed"] for c in cells] == ["n/a", "yes"]
+    assert [c["controller"] for c in cells] == ["replay", "replay"]  # no controller axis: replay
     assert cells[0]["intimate_space_intrusions_pct"] == "20" and cells[0]["trajectory"] == "a" * 12
     assert cells[0]["avg_acceleration_mps2"] == "1.2"
 

@@ -1,0 +1,232 @@
+"""Body landmarks and person masks per frame, from a person detector that runs offline.
+
+The landmarks are BlazePose's 33 (``LANDMARK_NAMES``, the order of MediaPipe Pose's
+``PoseLandmark`` enum in google-ai-edge/mediapipe, ``mediapipe/python/solutions/pose.py``;
+left/right are the person's own). For each frame a detector gives (``FrameObservation``):
+
+* ``image_uv_px (L, 2)``: pixel coordinates, nsim's convention (``nsim.geometry.cameras``:
+  the centre of the top-left pixel is ``(0, 0)``, u right, v down);
+* ``body_m (L, 3)``: the landmarks in metres relative to the midpoint of the hips, in the
+  camera's axes (OpenCV: x right, y down, z forward), MediaPipe's "world landmarks";
+* ``visibility (L,)``: how likely each landmark is in view and not hidden, in [0, 1];
+* ``person_mask (H, W)``: probability that a pixel shows the tracked person;
+* ``people_mask (H, W)`` or None: probability that a pixel shows any person (to tell when a
+  second person is in the frame; ``other_people``).
+
+``PoseDetector`` is the interface (a callable on one RGB frame, None when no person is found);
+``MediaPipePoseDetector`` implements it with the models the ``mediapipe`` wheels ship
+(``pose_detection.tflite`` + ``pose_landmark_full.tflite``, and ``selfie_segmentation.tflite``
+for everyone in the frame), nothing downloaded. MediaPipe is the optional extra ``nsim[people]``
+and is imported only when a detector is made; without it that raises a one-line ``InputError``.
+``observe`` runs a detector over frames and stacks what it found (``Observations``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from nsim.errors import InputError
+
+log = logging.getLogger(__name__)
+
+LANDMARK_NAMES: tuple[str, ...] = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
+    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
+    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
+    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)
+"""BlazePose's 33 body landmarks, in MediaPipe's order."""
+
+PEOPLE_EXTRA = "nsim[people]"
+"""The optional extra that installs the person detector."""
+
+MASK_THRESHOLD = 0.5
+"""A pixel belongs to a person where the mask's probability is at least this."""
+
+OTHER_PERSON_MIN_FRACTION = 0.2
+"""A blob of ``people_mask`` away from the tracked person counts as another person when its area is
+at least this fraction of the tracked person's."""
+
+
+@dataclass(frozen=True, eq=False)
+class FrameObservation:
+    """What a detector found in one frame (L landmarks; see the module docstring for the conventions).
+
+    image_uv_px: (L, 2) float64. body_m: (L, 3) float64. visibility: (L,) float64 in [0, 1].
+    person_mask: (H, W) float32 in [0, 1]. people_mask: (H, W) float32 in [0, 1], or None.
+    """
+
+    image_uv_px: np.ndarray
+    body_m: np.ndarray
+    visibility: np.ndarray
+    person_mask: np.ndarray
+    people_mask: np.ndarray | None = None
+
+
+class PoseDetector(Protocol):
+    """One person's landmarks and mask in an RGB frame ``(H, W, 3)`` uint8; None when nobody is found.
+
+    Frames are given in video order (a detector may track the person from frame to frame).
+    """
+
+    def __call__(self, rgb: np.ndarray) -> FrameObservation | None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True, eq=False)
+class Observations:
+    """A detector's results over F frames (arrays NaN / 0 where nobody was found).
+
+    found: (F,) bool. image_uv_px: (F, L, 2). body_m: (F, L, 3). visibility: (F, L).
+    person_masks: (F, H, W) float32. other_people: (F,) int, people found beside the tracked one.
+    width, height: frame size in pixels.
+    """
+
+    found: np.ndarray
+    image_uv_px: np.ndarray
+    body_m: np.ndarray
+    visibility: np.ndarray
+    person_masks: np.ndarray
+    other_people: np.ndarray
+    width: int
+    height: int
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.found.shape[0])
+
+
+def other_people(person_mask: np.ndarray, people_mask: np.ndarray | None,
+                 min_fraction: float = OTHER_PERSON_MIN_FRACTION) -> int:
+    """How many people besides the tracked one a frame shows.
+
+    person_mask: (H, W) the tracked person's probabilities; people_mask: (H, W) everyone's (None: 0).
+    Blobs of ``people_mask`` (at ``MASK_THRESHOLD``) that do not touch the tracked person's mask
+    (grown by 2 % of the frame's diagonal) and cover at least ``min_fraction`` of its area count.
+    """
+    import cv2
+
+    if people_mask is None:
+        return 0
+    person = np.asarray(person_mask) >= MASK_THRESHOLD
+    people = np.asarray(people_mask) >= MASK_THRESHOLD
+    if person.shape != people.shape or person.ndim != 2:
+        raise ValueError(f"other_people: expected two (H, W) masks of one size, got {person.shape}, {people.shape}")
+    area = int(person.sum())
+    if area == 0:
+        return 0
+    grow = max(1, int(round(0.02 * np.hypot(*person.shape))))
+    near = cv2.dilate(person.astype(np.uint8), np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)) > 0
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(people.astype(np.uint8), connectivity=8)
+    count = 0
+    for k in range(1, n):
+        blob = labels == k
+        if stats[k, cv2.CC_STAT_AREA] >= min_fraction * area and not (blob & near).any():
+            count += 1
+    return count
+
+
+def observe(frames: Iterable[np.ndarray], detector: PoseDetector) -> Observations:
+    """Run ``detector`` on every frame (``(H, W, 3)`` uint8 RGB, one size) and stack the results."""
+    found, uv, body, vis, masks, others = [], [], [], [], [], []
+    size = None
+    L = len(LANDMARK_NAMES)
+    for i, rgb in enumerate(frames):
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"observe: frame {i}: expected (H, W, 3) uint8 RGB, got {rgb.shape} {rgb.dtype}")
+        if size is None:
+            size = rgb.shape[:2]
+        elif rgb.shape[:2] != size:
+            raise InputError(f"frame {i} is {rgb.shape[1]}x{rgb.shape[0]}, frame 0 is {size[1]}x{size[0]} "
+                             "(one camera, one frame size)")
+        ob = detector(rgb)
+        found.append(ob is not None)
+        if ob is None:
+            uv.append(np.full((L, 2), np.nan))
+            body.append(np.full((L, 3), np.nan))
+            vis.append(np.zeros(L))
+            masks.append(np.zeros(size, np.float32))
+            others.append(0)
+            continue
+        uv.append(ob.image_uv_px)
+        body.append(ob.body_m)
+        vis.append(ob.visibility)
+        masks.append(np.asarray(ob.person_mask, dtype=np.float32))
+        others.append(other_people(ob.person_mask, ob.people_mask))
+    if size is None:
+        raise InputError("no frames to look for a person in")
+    return Observations(np.array(found), np.stack(uv), np.stack(body), np.stack(vis), np.stack(masks),
+                        np.array(others, dtype=np.int64), int(size[1]), int(size[0]))
+
+
+# ---------------------------------------------------------------------------------------------- MediaPipe
+
+
+def _import_mediapipe():
+    """The ``mediapipe`` module with its bundled legacy solutions; InputError (one line) otherwise."""
+    try:
+        import mediapipe as mp
+    except ImportError:
+        raise InputError(f"finding a person in a video needs MediaPipe: pip install '{PEOPLE_EXTRA}'") from None
+    solutions = getattr(mp, "solutions", None)
+    if solutions is None or not hasattr(solutions, "pose"):
+        raise InputError(f"mediapipe {getattr(mp, '__version__', '?')} ships no pose models (the 0.10 wheels do): "
+                         f"pip install '{PEOPLE_EXTRA}'")
+    return mp
+
+
+class MediaPipePoseDetector:
+    """``PoseDetector`` on MediaPipe Pose (BlazePose, full model) and Selfie Segmentation, offline.
+
+    Tracks one person from frame to frame (MediaPipe's video mode). min_detection_confidence,
+    min_tracking_confidence: MediaPipe's thresholds (0.5 each, its defaults).
+    """
+
+    def __init__(self, min_detection_confidence: float = 0.5, min_tracking_confidence: float = 0.5,
+                 find_others: bool = True) -> None:
+        mp = _import_mediapipe()
+        self._pose = mp.solutions.pose.Pose(static_image_mode=False, model_complexity=1, smooth_landmarks=True,
+                                            enable_segmentation=True, smooth_segmentation=True,
+                                            min_detection_confidence=min_detection_confidence,
+                                            min_tracking_confidence=min_tracking_confidence)
+        self._people = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0) if find_others else None
+
+    def __call__(self, rgb: np.ndarray) -> FrameObservation | None:
+        rgb = np.ascontiguousarray(rgb)
+        h, w = rgb.shape[:2]
+        res = self._pose.process(rgb)
+        if res.pose_landmarks is None or res.pose_world_landmarks is None:
+            return None
+        img = np.array([(p.x, p.y, p.visibility) for p in res.pose_landmarks.landmark], dtype=np.float64)
+        world = np.array([(p.x, p.y, p.z) for p in res.pose_world_landmarks.landmark], dtype=np.float64)
+        uv = img[:, :2] * np.array([w, h]) - 0.5  # normalised [0, 1] edges -> nsim pixel centres
+        mask = res.segmentation_mask
+        mask = np.zeros((h, w), np.float32) if mask is None else np.asarray(mask, dtype=np.float32)
+        people = None
+        if self._people is not None:
+            seg = self._people.process(rgb).segmentation_mask
+            people = None if seg is None else np.asarray(seg, dtype=np.float32)
+        return FrameObservation(uv, world, np.clip(img[:, 2], 0.0, 1.0), mask, people)
+
+    def close(self) -> None:
+        self._pose.close()
+        if self._people is not None:
+            self._people.close()
+
+    def __enter__(self) -> MediaPipePoseDetector:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["LANDMARK_NAMES", "PEOPLE_EXTRA", "FrameObservation", "MediaPipePoseDetector", "Observations",
+           "PoseDetector", "observe", "other_people"]

@@ -1,0 +1,180 @@
+"""``train-human --video`` / ``--images``: a person's frames become the human data folder train-human reads.
+
+``prepare_person_data(source, out_dir)``:
+
+1. makes the person detector first (``nsim.human.landmarks.MediaPipePoseDetector``), so a
+   missing ``nsim[people]`` extra fails before any decoding;
+2. reads the frames (``read_person_frames``): every frame of a video, thinned to at most
+   ``max_fps`` and shrunk to at most ``max_width`` pixels wide, or the images of a folder in
+   name order at ``images_fps``;
+3. finds and fits the person (``nsim.human.person_video.fit_person``: masks, a static metric
+   camera, bone lengths and per-frame joint angles; bad input is a one-line ``InputError``);
+4. writes the human data format (docs/human_data.md) for the kept frames into ``out_dir``::
+
+       transforms.json    the static camera (the same pose in every frame), intrinsics
+       images/frame_NNNNN.png, masks/frame_NNNNN.png   NNNNN: the frame's index in the input
+       poses.json         the fitted poses (nsim.human.data)
+       person.bvh         the person's own motion (longest unbroken stretch), nsim.human.bvh
+       person_fit.json    camera height, scale, field of view, bone lengths, dropped stretches
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nsim.errors import InputError
+from nsim.human.person_video import PersonFit, PersonVideoConfig, fit_person
+
+log = logging.getLogger(__name__)
+
+SOURCES = ("video", "images")
+PERSON_FIT_FILE = "person_fit.json"
+PERSON_BVH_FILE = "person.bvh"
+
+
+@dataclass(frozen=True)
+class PersonSource:
+    """Where the person's frames come from and how they are read.
+
+    path: a video file (kind "video") or a folder of images (kind "images").
+    images_fps: the frame rate of an image folder (a video states its own).
+    max_fps: a video's frames are thinned to at most this rate. max_width: frames are shrunk to this width.
+    person: how the person is found and fitted.
+    """
+
+    path: Path
+    kind: str = "video"
+    images_fps: float = 30.0
+    max_fps: float = 15.0
+    max_width: int = 640
+    person: PersonVideoConfig = field(default_factory=PersonVideoConfig)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", Path(self.path))
+        if self.kind not in SOURCES:
+            raise ValueError(f"PersonSource.kind: expected one of {SOURCES}, got {self.kind!r}")
+        for name in ("images_fps", "max_fps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 < v <= 240.0):
+                raise ValueError(f"PersonSource.{name}: must be in (0, 240], got {v!r}")
+        if not 64 <= self.max_width <= 8192:
+            raise ValueError(f"PersonSource.max_width: must be in [64, 8192], got {self.max_width!r}")
+
+
+def _shrink(rgb: np.ndarray, max_width: int) -> np.ndarray:
+    import cv2
+
+    h, w = rgb.shape[:2]
+    if w <= max_width:
+        return rgb
+    return cv2.resize(rgb, (max_width, max(1, round(h * max_width / w))), interpolation=cv2.INTER_AREA)
+
+
+def read_person_frames(source: PersonSource) -> tuple[list[np.ndarray], np.ndarray, float]:
+    """The frames ``(H, W, 3)`` uint8 RGB, their indices in the input ``(N,)`` and the frame rate they have.
+
+    InputError for a missing or unreadable input, or frames of different sizes.
+    """
+    if source.kind == "images":
+        from nsim.io.images import read_image
+        from nsim.sfm.frames import list_image_files
+
+        files = list_image_files(source.path)
+        if not files:
+            raise InputError(f"{source.path}: no images (jpg/jpeg/png)")
+        frames = [_shrink(read_image(p), source.max_width) for p in files]
+        return frames, np.arange(len(frames)), float(source.images_fps)
+    import cv2
+
+    path = source.path
+    if not path.is_file():
+        raise InputError(f"{path}: no such video file")
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        cap.release()
+        raise InputError(f"{path}: cannot open as a video (unreadable, corrupt or unsupported format)")
+    fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+    if not (math.isfinite(fps) and 0.0 < fps < 10_000.0):
+        cap.release()
+        raise InputError(f"{path}: the video states no frame rate")
+    every = max(1, math.ceil(fps / source.max_fps - 1e-9))
+    frames, index, i = [], [], 0
+    try:
+        while True:
+            ok, bgr = cap.read()
+            if not ok or bgr is None:
+                break
+            if i % every == 0:
+                frames.append(_shrink(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), source.max_width))
+                index.append(i)
+            i += 1
+    finally:
+        cap.release()
+    if not frames:
+        raise InputError(f"{path}: no frames could be decoded (empty or corrupt video)")
+    return frames, np.asarray(index, dtype=np.int64), fps / every
+
+
+def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray, fit: PersonFit) -> dict:
+    """Write the human data folder of the kept frames (module docstring); returns person_fit.json's content."""
+    from nsim.human.bvh import write_bvh
+    from nsim.human.data import write_poses
+    from nsim.io import atomic_write_text
+    from nsim.io.images import write_image
+    from nsim.io.transforms_json import Frame, TransformsData, write_transforms
+
+    out_dir = Path(out_dir)
+    (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    (out_dir / "masks").mkdir(parents=True, exist_ok=True)
+    names = [f"frame_{int(index[k]):05d}" for k in fit.frames]
+    out_frames = []
+    for row, (k, name) in enumerate(zip(fit.frames, names, strict=True)):
+        write_image(out_dir / "images" / f"{name}.png", frames[int(k)])
+        write_image(out_dir / "masks" / f"{name}.png", fit.masks[row].astype(np.uint8) * 255)
+        out_frames.append(Frame(file_path=f"images/{name}.png", cam_to_world=fit.cam_to_world, camera=fit.camera,
+                                timestamp_s=float(k) / fit.fps))
+    write_transforms(out_dir / "transforms.json", TransformsData(frames=out_frames))
+    write_poses(out_dir / "poses.json", fit.human_poses(tuple(f"images/{n}.png" for n in names)))
+    write_bvh(out_dir / PERSON_BVH_FILE, fit.motion_clip("person"))
+    sk = fit.poses.body.skeleton
+    report = {
+        "frames_in": len(frames), "frames_kept": int(fit.frames.size), "fps": fit.fps,
+        "hfov_deg": float(fit.camera.fov_deg[0]), "camera_height_m": fit.camera_height_m, "scale": fit.scale,
+        "height_m": fit.poses.body.height_m,
+        "bone_lengths_m": {sk.joint_names[j]: float(np.linalg.norm(sk.offsets_m[j])) for j in range(1, sk.num_joints)},
+        "landmark_error_median_m": float(np.nanmedian(fit.poses.landmark_error_m)),
+        "dropped": [d.describe(fit.fps) for d in fit.dropped],
+    }
+    atomic_write_text(out_dir / PERSON_FIT_FILE, json.dumps(report, indent=1) + "\n")
+    return report
+
+
+def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None) -> dict:
+    """Steps 1-4 of the module docstring; returns the person_fit.json content.
+
+    detector: a ``nsim.human.landmarks.PoseDetector`` (None: MediaPipe, which needs ``nsim[people]``).
+    """
+    from nsim.human.landmarks import MediaPipePoseDetector, observe
+
+    own = detector is None
+    detector = MediaPipePoseDetector() if own else detector
+    try:
+        frames, index, fps = read_person_frames(source)
+        obs = observe(frames, detector)
+    finally:
+        if own:
+            detector.close()
+    fit = fit_person(obs, fps, source.person, source=str(source.path))
+    for d in fit.dropped:
+        log.warning("%s: dropped %s", source.path, d.describe(fit.fps))
+    return write_person_data(Path(out_dir), frames, index, fit)
+
+
+__all__ = ["PERSON_BVH_FILE", "PERSON_FIT_FILE", "PersonSource", "prepare_person_data", "read_person_frames",
+           "write_person_data"]

@@ -1,0 +1,119 @@
+"""The detector interface: stacking a detector's results, counting other people, and the optional extra."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from nsim.errors import InputError
+from nsim.human.landmarks import (
+    LANDMARK_NAMES,
+    FrameObservation,
+    MediaPipePoseDetector,
+    observe,
+    other_people,
+)
+
+
+class _Scripted:
+    """A detector that finds the person in the frames whose top-left pixel is not black."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, rgb):
+        self.calls += 1
+        if rgb[0, 0].max() == 0:
+            return None
+        h, w = rgb.shape[:2]
+        mask = np.zeros((h, w), np.float32)
+        mask[2:6, 3:5] = 1.0
+        return FrameObservation(np.full((33, 2), 4.0), np.zeros((33, 3)), np.full(33, 0.9), mask, None)
+
+    def close(self):
+        pass
+
+
+def test_landmark_names():
+    assert len(LANDMARK_NAMES) == 33 and len(set(LANDMARK_NAMES)) == 33
+    assert LANDMARK_NAMES[0] == "nose" and LANDMARK_NAMES[23] == "left_hip" and LANDMARK_NAMES[32] == "right_foot_index"
+
+
+def test_observe_stacks_frames_and_marks_misses():
+    frames = [np.full((8, 10, 3), v, np.uint8) for v in (9, 0, 9)]
+    det = _Scripted()
+    obs = observe(frames, det)
+    assert det.calls == 3
+    assert obs.found.tolist() == [True, False, True]
+    assert (obs.width, obs.height) == (10, 8)
+    assert np.isnan(obs.image_uv_px[1]).all() and (obs.visibility[1] == 0).all()
+    assert obs.person_masks.shape == (3, 8, 10) and obs.person_masks[0].sum() == 8 and obs.person_masks[1].sum() == 0
+    with pytest.raises(InputError, match="frame 1 is 4x8"):
+        observe([frames[0], np.zeros((8, 4, 3), np.uint8)], _Scripted())
+    with pytest.raises(InputError, match="no frames"):
+        observe([], _Scripted())
+
+
+def test_other_people_counts_separate_blobs():
+    person = np.zeros((100, 160), np.float32)
+    person[20:90, 30:50] = 1.0
+    people = person.copy()
+    assert other_people(person, people) == 0
+    assert other_people(person, None) == 0
+    people[25:85, 110:128] = 0.9  # someone else, as big, far away
+    assert other_people(person, people) == 1
+    people[10:14, 150:154] = 1.0  # a speck: not a person
+    assert other_people(person, people) == 1
+    touching = person.copy()
+    touching[20:90, 50:70] = 1.0  # the tracked person's own halo
+    assert other_people(person, touching) == 0
+
+
+def test_without_mediapipe_one_line_naming_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "mediapipe", None)  # import fails as if not installed
+    with pytest.raises(InputError, match=r"nsim\[people\]") as err:
+        MediaPipePoseDetector()
+    assert "\n" not in str(err.value)
+
+
+def test_mediapipe_without_models_is_refused(monkeypatch):
+    """mediapipe 1.x has no ``solutions`` (no bundled pose models): the same one-line hint."""
+    import types
+
+    monkeypatch.setitem(sys.modules, "mediapipe", types.SimpleNamespace(__version__="1.2.2"))
+    with pytest.raises(InputError, match=r"1\.2\.2 ships no pose models.*nsim\[people\]"):
+        MediaPipePoseDetector()
+
+
+@pytest.mark.slow
+def test_mediapipe_finds_the_test_actor(tmp_path):
+    """With ``nsim[people]`` installed: MediaPipe finds the test room's actor (human proportions, a face),
+    its mask overlaps the true one and its joints project near the true joints (skipped without it)."""
+    pytest.importorskip("mediapipe")
+    from nsim.human.data import HumanData
+    from nsim.human.skeleton import JOINT_NAMES
+    from nsim.synth.actor_capture import ActorCaptureConfig, render_actor_capture
+
+    render_actor_capture(tmp_path / "cap", ActorCaptureConfig(n_frames=4, fps=10.0, width=480, height=360,
+                                                              supersample=1, video=False), seed=0)
+    hd = HumanData.load(tmp_path / "cap")
+    images, masks, _ = hd.read_all()
+    with MediaPipePoseDetector() as det:
+        obs = observe(list(images), det)
+    assert obs.found.all()
+    pred = obs.person_masks >= 0.5
+    iou = (pred & masks).sum(axis=(1, 2)) / (pred | masks).sum(axis=(1, 2))
+    assert iou.mean() > 0.8, iou
+    # shoulders and hips (always in view) within 12 px of the true joints
+    w2c = np.linalg.inv(hd.cam_to_world())
+    joints = hd.joint_transforms()[..., :3, 3]
+    cam_pts = np.einsum("fij,fkj->fki", w2c[:, :3, :3], joints) + w2c[:, None, :3, 3]
+    uv, _ = hd.camera().project(cam_pts)
+    names = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+    err = np.linalg.norm(obs.image_uv_px[:, [LANDMARK_NAMES.index(n) for n in names]]
+                         - uv[:, [JOINT_NAMES.index(n) for n in names]], axis=-1)
+    assert np.median(err) < 12.0, err
+    # MediaPipe's body coordinates are in the camera's axes, y down: the nose above the hips
+    assert (obs.body_m[:, 0, 1] < obs.body_m[:, 23, 1]).all()
