@@ -13,12 +13,12 @@ from nsim.cli import main
 from nsim.crowd.paths import yaw_poses_se3
 from nsim.geometry.cameras import Camera
 from nsim.io.exr import read_depth_exr, read_points_exr
+from nsim.io.recording_output import inside_trajectory, kept_frames
 from nsim.io.robot_log import RobotLog
 from nsim.io.tum import read_tum
 from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import CameraSensor, load_rig, static_transforms
 from nsim.stages.capture import RobotLogConfig
-from nsim.stages.import_log import inside_trajectory, kept_frames
 from nsim.synth.robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store
