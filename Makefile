@@ -9,7 +9,7 @@ FLOORS_VENV := .venv-floors
 # The smoke subset at the dependency floors: configs, EXR (OpenEXR), LiDAR EXR headers, ROS bags (rosbags), TUM
 # trajectories (scipy's Rotation), SfM (pycolmap)
 FLOORS_TESTS ?= tests/test_config.py tests/io/test_exr.py tests/io/test_lidar_exr.py tests/io/test_rosbag.py \
-	tests/io/test_tum.py tests/sfm/test_colmap.py
+	tests/io/test_tum.py tests/sfm/test_colmap.py tests/crowd/test_schema.py
 PYTEST_ARGS ?=
 BENCH_ARGS  ?=
 PAPER_ARGS  ?= --size small
