@@ -1,6 +1,6 @@
 """``nsim render`` on the test room: accuracy against the oracle, Spot's cameras, speed.
 
-    python bench/render.py [--quick] [--workspace DIR] [--scene REF] [--ticks N] [--image-scale S]
+    python bench/render.py [--quick] [--workspace DIR] [--scene REF] [--ticks N] [--image-scale S] [--baked]
 
 Uses the default capture (robot-lab, 320x240, ground-truth poses) and a scene checkpoint:
 ``--scene REF``, else ``scene/bench-gt`` in ``--workspace`` (what ``bench/train_scene.py
@@ -39,6 +39,24 @@ Measures, with the same renderer the stage uses (marching + occupancy grid):
    ``render_rays``, the human NeRF, the merge in ``HumanSet.composite``, the rest of the stage),
    and whether the outputs are identical. (Spot's 360-degree LiDAR would see the people behind
    the robot within its range, so (a) uses the two front cameras, which cannot.)
+
+``--baked`` measures instead the baked scene (``nsim bake`` with ``--bake-preset``, ``nsim render --set
+method=baked``) against the NeRF (``method: proposal``, the stage's default), side by side in one run:
+
+6. the bake's wall time and size on disk;
+7. held-out capture views through the stage with both renderers: PSNR / SSIM / LPIPS of the baked images
+   against the NeRF's, each one's PSNR / SSIM against the captured images and depth AbsRel against the
+   capture's depth;
+8. Spot along ``spot_run`` (``--ticks``, ``--image-scale``) with both: PSNR / SSIM / LPIPS baked against NeRF
+   over the oracle's valid pixels, each one's depth AbsRel against the oracle and LiDAR median range error
+   against the oracle's exact scan (``nsim.metrics.lidar``);
+9. speed: rays/s in-process on one tick's rays (cameras at ``--image-scale`` + LiDAR; the NeRF on a random
+   ``--nerf-rays`` of them), 2 threads, the stage's chunk; the wall time of one full Spot tick (five
+   fisheyes at ``--tick-scale``, 1.0 = 640x480, and the 16x1800 LiDAR) and of the LiDAR sweep alone through
+   the stage, files written, after a warm-up.
+
+Its JSON line leads with ``nerf_rays_s, baked_rays_s, speedup, psnr_baked_vs_nerf, spot_tick_s, lidar_sweep_s,
+bake_s, bake_mb``. ``--quick --baked``: the tiny capture and scene, 3 held-out views, the tick at x0.25.
 
 Prints tables and one JSON object on the last line.
 """
@@ -515,6 +533,184 @@ def culling_bench(ctx: RunContext, traj: str, scene_id: str, human: str, args) -
     return res
 
 
+# ---------------------------------------------------------------------------------- baked (--baked)
+def _file_mb(path: Path) -> float:
+    return sum(f.stat().st_size for f in path.iterdir() if f.is_file() and f.name != "manifest.json") / 1e6
+
+
+def _pair_scores(pred_u8: np.ndarray, ref_u8: np.ndarray, mask: np.ndarray | None = None) -> dict:
+    """PSNR / SSIM / LPIPS of one 8-bit image against another (``nsim.metrics``; LPIPS n/a without weights)."""
+    from nsim.metrics.image import psnr, ssim
+    from nsim.metrics.lpips import lpips_or_na
+
+    p = pred_u8.astype(np.float32) / 255.0
+    r = ref_u8.astype(np.float32) / 255.0
+    if p.ndim == 2:
+        p, r = np.repeat(p[..., None], 3, -1), np.repeat(r[..., None], 3, -1)
+    lp = lpips_or_na(p, r, mask=mask) if min(p.shape[:2]) >= 32 else float("nan")
+    return {"psnr": float(psnr(p, r, mask)), "ssim": float(ssim(p, r, mask)),
+            "lpips": float(lp) if isinstance(lp, float) else float("nan")}
+
+
+def _mean(rows: list[dict], key: str) -> float:
+    vals = [r[key] for r in rows if np.isfinite(r[key])]
+    return float(np.mean(vals)) if vals else float("nan")
+
+
+def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) -> dict:
+    """In-process rendering speed on the same rays (one Spot tick's cameras at ``--image-scale`` and its
+    LiDAR): the NeRF as the stage renders it by default (``method: proposal``) on a subset, the baked scene
+    on all of them; 2 threads, the stage's chunk size."""
+    import torch
+
+    from nsim.rendering import OccupancyGrid, load_model
+    from nsim.rendering.baked import BakedScene, render_baked
+    from nsim.rendering.rays import make_rays
+    from nsim.rendering.renderer import render_rays
+    from nsim.sensors.rig import Rig
+
+    store = ctx.store
+    scene = store.get(scene_id)
+    model = load_model(scene.path, "cpu")
+    grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"))
+    baked = BakedScene.load(store.get(baked_id).path)
+    cfg = render.Config()
+    rig = adapt_rig(Rig.load(SPOT), dataclasses.replace(cfg, image_scale=args.image_scale))
+    body = np.load(store.get(traj).file("trajectory.npz"))["robot_pose_se3"][args.tick_stride]
+    o, d = zip(*(s.rays(body) for s in rig.sensors), strict=True)
+    o = np.concatenate([x.reshape(-1, 3) for x in o])
+    d = np.concatenate([x.reshape(-1, 3) for x in d])
+    d = np.where(np.isfinite(d).all(-1, keepdims=True), d, [0.0, 0.0, 1.0])
+    sc = model.sampler_cfg
+    rays = make_rays(torch.as_tensor(o, dtype=torch.float32), torch.as_tensor(d, dtype=torch.float32), sc.near_m,
+                     sc.far_m, model.aabb if sc.clip_rays_to_box else None)
+    g = torch.Generator().manual_seed(0)
+    sub = rays[torch.randperm(len(rays), generator=g)[: min(len(rays), args.nerf_rays)]]
+    render_baked(baked, sub[:2048], cfg.chunk_rays)  # warm-up: first-call allocations
+    t0 = time.perf_counter()
+    render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays)
+    nerf_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    render_baked(baked, rays, cfg.chunk_rays)
+    baked_s = time.perf_counter() - t0
+    return {"nerf_rays_s": len(sub) / nerf_s, "baked_rays_s": len(rays) / baked_s, "nerf_rays": len(sub),
+            "baked_rays": len(rays)}
+
+
+def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, args) -> dict:
+    """NeRF against baked, side by side in one run (module docstring, ``--baked``)."""
+    from nsim.io.exr import read_depth_exr
+    from nsim.io.images import read_image
+    from nsim.io.lidar_exr import read_lidar_exr
+    from nsim.io.transforms_json import read_transforms
+    from nsim.metrics.lidar import lidar_range_metrics
+    from nsim.sensors.rig import Rig
+    from nsim.stages import bake
+
+    store = ctx.store
+    forced = dataclasses.replace(ctx, force=True)
+    res: dict = {}
+    # 1. the bake
+    bcfg = load_config(bake.Config, stage="bake", preset=args.bake_preset)
+    t0 = time.perf_counter()
+    baked_id = bake.run(bake.Inputs(scene=scene_id), bcfg, forced).baked
+    res["bake"] = {"bake_s": time.perf_counter() - t0, "bake_mb": _file_mb(store.get(baked_id).path),
+                   "config": to_dict(bcfg), **store.get(baked_id).manifest["summary"]}
+    print(f"bake: {res['bake']['bake_s']:.1f} s, {res['bake']['bake_mb']:.1f} MB, {res['bake']['bricks']} bricks",
+          flush=True)
+
+    def stage(method: str, inputs: render.Inputs, over: dict) -> tuple[str, float]:
+        cfg = from_dict(render.Config, {"video": False, "noise": False, "method": method, **over})
+        t = time.perf_counter()
+        out = render.run(dataclasses.replace(inputs, baked=baked_id if method == "baked" else None), cfg, forced)
+        return out.render, time.perf_counter() - t
+
+    # 2. held-out capture views
+    cap = store.get(cap_id)
+    tf = read_transforms(cap.file("transforms.json")).frames
+    over = {"frames": "heldout", "max_frames": args.heldout_views}
+    arts = {m: stage(m, render.Inputs(poses=cap_id, scene=scene_id), over) for m in ("proposal", "baked")}
+    rows = []
+    for f in json.loads(store.get(arts["baked"][0]).file("render.json").read_text())["frames"]:
+        i = f["index"]
+        img = {m: read_image(store.get(a).file(f"frames/rgb/{i:06d}.png")) for m, (a, _) in arts.items()}
+        gt = read_image(cap.path / tf[i].file_path)
+        dg = read_depth_exr(cap.path / tf[i].depth_file_path)
+        row = {"frame": i, **{f"{k}_vs_nerf": v for k, v in _pair_scores(img["baked"], img["proposal"]).items()}}
+        for m, name in (("proposal", "nerf"), ("baked", "baked")):
+            sc = _pair_scores(img[m], gt)
+            row[f"{name}_psnr"], row[f"{name}_ssim"] = sc["psnr"], sc["ssim"]
+            row[f"{name}_abs_rel"] = abs_rel(read_depth_exr(store.get(arts[m][0]).file(f"frames/depth/{i:06d}.exr")), dg)
+        rows.append(row)
+    res["heldout"] = {k: _mean(rows, k) for k in rows[0] if k != "frame"}
+    res["heldout"].update({"views": len(rows), "nerf_stage_s": arts["proposal"][1], "baked_stage_s": arts["baked"][1]})
+    h = res["heldout"]
+    print(f"held-out views ({len(rows)}): PSNR vs GT NeRF {h['nerf_psnr']:.2f} / baked {h['baked_psnr']:.2f} dB; baked "
+          f"vs NeRF PSNR {h['psnr_vs_nerf']:.2f} dB SSIM {h['ssim_vs_nerf']:.4f} LPIPS {h['lpips_vs_nerf']:.4f}; "
+          f"depth AbsRel NeRF {h['nerf_abs_rel']:.4f} / baked {h['baked_abs_rel']:.4f}", flush=True)
+
+    # 3. Spot along spot_run: both renderers against each other and against the oracle
+    over = {"tick_stride": args.tick_stride, "max_frames": args.ticks, "image_scale": args.image_scale,
+            "lidar_azimuth_scale": args.lidar_scale, "shard_frames": max(1, args.ticks)}
+    spot = {m: stage(m, render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), over) for m in ("proposal", "baked")}
+    art = {m: store.get(a) for m, (a, _) in spot.items()}
+    rig = Rig.from_resolved(json.loads(art["baked"].file("rig.json").read_text()))
+    from nsim.io.tum import read_tum
+
+    body = read_tum(art["baked"].file("robot.tum")).poses_se3()
+    meta = json.loads(art["baked"].file("render.json").read_text())
+    cam_rows, lidar = [], {"proposal": [], "baked": []}
+    for f, T in zip(meta["frames"], body, strict=True):
+        i = f["index"]
+        for s in rig.sensors:
+            if s.type == "lidar":
+                gt = oracle.lidar_gt(s.world_pose(T), s).ranges_m
+                for m in lidar:
+                    scan = read_lidar_exr(art[m].file(f"{s.name}/scan/{i:06d}.exr"))
+                    lidar[m].append(lidar_range_metrics(scan.range_m, gt))
+                continue
+            view = oracle.render_gt(s.camera, s.world_pose(T), supersample=2)
+            valid = np.isfinite(view.depth_range)
+            img = {m: read_image(art[m].file(f"{s.name}/rgb/{i:06d}.png")) for m in art}
+            row = {f"{k}_vs_nerf": v for k, v in _pair_scores(img["baked"], img["proposal"], valid).items()}
+            for m, name in (("proposal", "nerf"), ("baked", "baked")):
+                row[f"{name}_abs_rel"] = abs_rel(read_depth_exr(art[m].file(f"{s.name}/depth/{i:06d}.exr")), view.depth_z)
+            cam_rows.append(row)
+    res["spot"] = {k: _mean(cam_rows, k) for k in cam_rows[0]}
+    for m, name in (("proposal", "nerf"), ("baked", "baked")):
+        errs = [x.range_error_median_m for x in lidar[m] if x.range_error_median_m is not None]
+        res["spot"][f"{name}_lidar_median_range_error_m"] = float(np.mean(errs)) if errs else float("nan")
+        res["spot"][f"{name}_lidar_hit_agreement"] = float(np.mean([x.hit_agreement for x in lidar[m]]))
+    res["spot"].update({"ticks": len(meta["frames"]), "nerf_stage_s": spot["proposal"][1],
+                        "baked_stage_s": spot["baked"][1]})
+    p = res["spot"]
+    print(f"Spot ({p['ticks']} ticks, cameras x{args.image_scale}): baked vs NeRF PSNR {p['psnr_vs_nerf']:.2f} dB SSIM "
+          f"{p['ssim_vs_nerf']:.4f} LPIPS {p['lpips_vs_nerf']:.4f}; depth AbsRel vs oracle NeRF {p['nerf_abs_rel']:.4f} / "
+          f"baked {p['baked_abs_rel']:.4f}; LiDAR median range error NeRF "
+          f"{p['nerf_lidar_median_range_error_m'] * 100:.2f} / baked {p['baked_lidar_median_range_error_m'] * 100:.2f} cm; "
+          f"stage NeRF {p['nerf_stage_s']:.1f} s, baked {p['baked_stage_s']:.1f} s", flush=True)
+
+    # 4. speed: rays/s in-process, a full Spot tick and a LiDAR sweep through the stage (files written)
+    res["speed"] = _rays_per_s(ctx, scene_id, baked_id, traj, args)
+    tick = {"tick_stride": args.tick_stride, "max_frames": 1, "image_scale": args.tick_scale, "lidar_azimuth_scale": 1.0,
+            "shard_frames": 1}
+    stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), {**tick, "image_scale": 0.05})  # warm-up
+    _, res["speed"]["spot_tick_s"] = stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), tick)
+    _, res["speed"]["lidar_sweep_s"] = stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT),
+                                             {**tick, "sensors": ["lidar"]})
+    res["speed"]["tick_image_scale"] = args.tick_scale
+    sp = res["speed"]
+    sp["speedup"] = sp["baked_rays_s"] / sp["nerf_rays_s"]
+    print(f"speed (2 threads): NeRF {sp['nerf_rays_s']:.0f} rays/s, baked {sp['baked_rays_s']:.0f} rays/s "
+          f"(x{sp['speedup']:.1f}); Spot tick (5 fisheyes at x{args.tick_scale} + LiDAR 16x1800) through the stage "
+          f"{sp['spot_tick_s']:.2f} s, LiDAR sweep alone {sp['lidar_sweep_s']:.2f} s", flush=True)
+    res["summary"] = {"nerf_rays_s": sp["nerf_rays_s"], "baked_rays_s": sp["baked_rays_s"], "speedup": sp["speedup"],
+                      "psnr_baked_vs_nerf": h["psnr_vs_nerf"], "spot_tick_s": sp["spot_tick_s"],
+                      "lidar_sweep_s": sp["lidar_sweep_s"], "bake_s": res["bake"]["bake_s"],
+                      "bake_mb": res["bake"]["bake_mb"]}
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -533,6 +729,16 @@ def main() -> None:
     ap.add_argument("--culling-scale", type=float, default=None,
                     help="camera scale of the culling section (default: --image-scale)")
     ap.add_argument("--culling-reps", type=int, default=None, help="timed repetitions per mode (default 3, 2 quick)")
+    ap.add_argument("--baked", action="store_true", help="only the baked scene against the NeRF (nsim bake, "
+                                                         "method: baked): speed, images, depth, LiDAR, bake cost")
+    ap.add_argument("--capture", default=None, help="the capture the --scene was trained on (default: made here "
+                                                    "with the capture preset; a scene of another capture scores wrong)")
+    ap.add_argument("--bake-preset", default="default", help="--baked: the bake preset (configs/bake/NAME.yaml)")
+    ap.add_argument("--heldout-views", type=int, default=None, help="--baked: held-out views (default all, 3 quick)")
+    ap.add_argument("--nerf-rays", type=int, default=None, help="--baked: rays the NeRF's speed is timed on "
+                                                                "(default 30000, 4000 quick)")
+    ap.add_argument("--tick-scale", type=float, default=None, help="--baked: camera scale of the timed Spot tick "
+                                                                   "(default 1.0 = 640x480, 0.25 quick)")
     args = ap.parse_args()
     q = args.quick
     args.ticks = args.ticks or (2 if q else 12)
@@ -541,6 +747,9 @@ def main() -> None:
     args.lidar_scale = args.lidar_scale or (0.05 if q else 0.5)
     args.culling_scale = args.culling_scale or args.image_scale
     args.culling_reps = args.culling_reps or (2 if q else 3)
+    args.heldout_views = args.heldout_views or (3 if q else None)
+    args.nerf_rays = args.nerf_rays or (4000 if q else 30000)
+    args.tick_scale = args.tick_scale or (0.25 if q else 1.0)
     import torch
 
     torch.set_num_threads(2)
@@ -550,7 +759,10 @@ def main() -> None:
         store = Store(ws)
         ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
         cap_cfg = load_config(capture.Config, stage="capture", preset="tiny" if q else "default", overrides=["video=false"])
-        cap_id = capture.run(capture.Inputs(), cap_cfg, ctx).capture
+        if args.capture is not None:  # the capture the scene was trained on (its held-out frames, its room)
+            cap_id = store.resolve(args.capture, kind="capture")
+        else:
+            cap_id = capture.run(capture.Inputs(), cap_cfg, ctx).capture
         cap = store.get(cap_id)
         scene_id = get_scene(ctx, cap_id, args.scene, q)
         from nsim.synth.oracle import RoomOracle
@@ -559,6 +771,11 @@ def main() -> None:
         oracle = RoomOracle(RoomSpec.from_dict(json.loads(cap.file("room.json").read_text())["spec"]))
 
         traj = spot_run(ctx, q)
+        if args.baked:
+            results["baked"] = baked_bench(ctx, cap_id, scene_id, traj, oracle, args)
+            print(json.dumps({"quick": q, "image_scale": args.image_scale, **results["baked"]["summary"],
+                              "baked": results["baked"]}, default=lambda o: to_dict(o)))
+            return
         if not args.only_culling:
             results["heldout"] = {}
             for method, views, step in (("proposal", None, 0.01), ("march", 2, args.march_step)):

@@ -20,6 +20,7 @@ from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
 from nsim.stages import (  # noqa: E402
+    bake,
     capture,
     evaluate,
     export,
@@ -130,6 +131,19 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
                            overrides=["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=4"])
     held = step("render (held-out frames)", lambda: render.run(render.Inputs(poses=poses_id, scene=scene_id), held_cfg, ctx))
     ctx.store.set_ref("render/demo-heldout", held.render)
+
+    # The scene baked into a sparse voxel grid (nsim bake) and the same held-out frames rendered from it
+    # (--set method=baked). Experimental: coarse voxels here, and the NeRF stays the default renderer
+    # until the baked one meets issue 25's bars (README, "Sensors").
+    bake_cfg = load_config(bake.Config, stage="bake", preset="tiny")
+    baked = step("bake (experimental, 10 cm voxels)", lambda: bake.run(bake.Inputs(scene=scene_id), bake_cfg, ctx)).baked
+    ctx.store.set_ref("baked/demo", baked)
+    hb_cfg = load_config(render.Config, stage="render", preset=ren_preset,
+                         overrides=["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=4", "method=baked"])
+    held_baked = step("render (held-out frames, baked scene)",
+                      lambda: render.run(render.Inputs(poses=poses_id, scene=scene_id, baked=baked), hb_cfg, ctx))
+    ctx.store.set_ref("render/demo-heldout-baked", held_baked.render)
+    print(f"[demo]   {ctx.store.get(held_baked.render).path / 'preview' / 'contact_sheet.png'}", flush=True)
 
     # How real it is: the paper's image and depth tables for these renders.
     for table, renders in (("scenes", (held.render,)), ("spot-rgb", (spot,)), ("spot-depth", (spot,))):

@@ -22,7 +22,7 @@ def test_demo_runs_every_stage_and_ends_with_ls(tmp_path):
     assert "nsim workspace" in proc.stdout
     store = Store(ws)
     kinds = sorted({a.kind for a in store.artifacts()})
-    assert kinds == ["capture", "evaluation", "export", "human-checkpoint", "poses", "recording", "render",
+    assert kinds == ["baked-scene", "capture", "evaluation", "export", "human-checkpoint", "poses", "recording", "render",
                      "scene-checkpoint", "trajectory"]
     for art in store.artifacts():
         assert store.verify(art.id) == []

@@ -9,7 +9,7 @@ import click
 
 # module name under nsim.commands -> attribute holding the click command or group
 COMMAND_MODULES = ("capture", "reconstruct", "train_scene", "train_human", "simulate", "render", "evaluate", "export",
-                   "import_log", "register_log")
+                   "import_log", "register_log", "bake")
 
 
 def register_commands(group: click.Group) -> None:

@@ -18,6 +18,8 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
               help="A registration artifact (nsim register-log): render exactly its recording's sensors, frame for frame.")
 @click.option("--scene", default=None, help="Scene checkpoint (default: the one the trajectory's scenario names; "
                                             "required with --poses and --recording).")
+@click.option("--baked", default=None, help="A baked-scene artifact of the scene (nsim bake), with --set method=baked "
+                                            "(without it, method=baked bakes the scene here).")
 @click.option("--rig", type=click.Path(dir_okay=False), default=None,
               help="Robot rig file (trajectory mode), e.g. configs/robots/spot.yaml.")
 @click.option("--humans", multiple=True, help="Human checkpoint(s) that draw the trajectory's people (repeatable; with "
@@ -35,7 +37,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--rosbag", "rosbag_path", type=click.Path(file_okay=False), default=None,
               help="--trajectory: also export the render as a ROS 2 bag, a new directory (its parent must exist).")
 @click.pass_context
-def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, poses, recording, scene, rig, humans,
+def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, poses, recording, scene, baked, rig, humans,
             engine, address, workers, gpus_per_worker, cpus_per_worker, max_restarts, rosbag_path):
     """Render RGB, depth and LiDAR of a rig along a trajectory (or a poses artifact's cameras, or exactly the
     sensors of a registered robot recording)."""
@@ -64,7 +66,7 @@ def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, p
     eng = EngineConfig(engine=engine, address=address, workers=workers, num_gpus_per_worker=gpus_per_worker,
                        num_cpus_per_worker=cpus_per_worker, max_restarts=max_restarts)
     inputs = render.Inputs(trajectory=trajectory, poses=poses, scene=scene, rig=Path(rig) if rig else None,
-                           humans=tuple(humans), registration=recording)
+                           humans=tuple(humans), registration=recording, baked=baked)
     out = render.run(inputs, cfg, ctx, engine=eng)
     if out.shards_reused:
         click.echo(f"resumed: {out.shards_reused} shard(s) were already rendered", err=True)

@@ -136,12 +136,14 @@ class HumanSet:
             people.append({"k": k, "T": T, "model": model, "mask": torch.as_tensor(mask if culling else np.ones_like(mask))})
         return people
 
-    def composite(self, scene_model, grid, rays, people: list[dict], cfg):
+    def composite(self, scene_model, grid, rays, people: list[dict], cfg, scene_out=None):
         """Scene samples + every person's samples on its rays, merged in depth order; one volume
         rendering over both. Returns (RenderOutput, instance ids (N,) uint16).
 
         cfg: the render config (``nsim.stages.render.Config``): its ``method``, ``march``,
-        ``chunk_rays`` (the scene's rendering) and ``culling`` (the people's box test)."""
+        ``chunk_rays`` (the scene's rendering) and ``culling`` (the people's box test). scene_out: the
+        scene already rendered along ``rays`` with its samples (e.g. from a baked scene,
+        ``nsim.rendering.baked.render_baked``); None renders ``scene_model`` here."""
         import torch
 
         from nsim.rendering.compositing import composite_sets, set_weights
@@ -149,7 +151,8 @@ class HumanSet:
         from nsim.rendering.renderer import render_rays
 
         n = len(rays)
-        scene_out = render_rays(scene_model, rays, cfg.method, grid, cfg.march, cfg.chunk_rays, return_samples=True)
+        if scene_out is None:
+            scene_out = render_rays(scene_model, rays, cfg.method, grid, cfg.march, cfg.chunk_rays, return_samples=True)
         any_mask = torch.zeros(n, dtype=torch.bool)
         for p in people:
             any_mask |= p["mask"]

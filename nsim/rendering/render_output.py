@@ -8,6 +8,46 @@ and the H.264 video, rows drawn by ``_frame_strip`` or, recording mode, ``_recor
 ``export_rosbag`` writes a trajectory-mode artifact as a ROS 2 bag.
 
 ``inputs`` and ``cfg`` are the stage's resolved ``nsim.stages.render.Inputs`` and its ``Config``.
+
+The render artifact (``nsim render``; its modes are described in :mod:`nsim.stages.render`).
+Layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses)::
+
+    render.json                  mode, sensors, frames (index, time, name), conventions, the scene id
+    rig.json                     the resolved rig (mounts, intrinsics, LiDAR patterns)
+    robot.tum                    trajectory mode: the robot body pose at each rendered tick
+    cameras/<sensor>.json        per camera: transforms.json (intrinsics, cam_to_world per frame)
+    <camera>/rgb/NNNNNN.png      8-bit sRGB (gray cameras: one channel)
+    <camera>/rgb_linear/NNNNNN.exr   (rgb_exr: true) linear float16 R, G, B
+    <camera>/depth/NNNNNN.exr    float32 channel Z: the rig's depth kind (z-depth along the optical
+                                 axis unless the rig says range), metres; inf = no return, NaN =
+                                 no valid measurement; stated in the header (nsim_depth)
+    <camera>/mask/NNNNNN.png     (with humans) 16-bit instance mask: 0 background, k = human k
+    <camera>/boxes.json          (with humans) COCO-style person boxes per frame
+    <lidar>/scan/NNNNNN.exr      organised sweep (rows = beams, cols = azimuth): X Y Z (sensor
+                                 frame), range, intensity (= opacity), ring; see nsim.io.lidar_exr
+    <lidar>/scan/NNNNNN.ply      the returns as a point cloud (sensor frame)
+    preview/contact_sheet.png    every ``preview_every``-th frame: the cameras side by side + LiDAR BEV
+                                 (recording mode: each camera's recorded frame beside the rendered one,
+                                 the LiDAR's recorded points grey under the rendered ones)
+    preview/preview.mp4          (video: true) the same for every frame (H.264, ``nsim.io.video``)
+
+Recording mode mirrors the recording's layout, file for file, for the frames rendered (``NNNNNN``
+= the recording's own frame index, ``<name>`` the stream's)::
+
+    render.json                  mode "recording", the recording, registration and scene ids, per
+                                 stream: name, kind, frames (index, stamp_ns, odom_time_ns,
+                                 sensor_to_world 4 x 4; with people people_time_s) and
+                                 skipped_outside_trajectory (with people people_outside_run); with
+                                 people ``people``: trajectory, humans, people_time_offset_s, the run's
+                                 span, the first odometry stamp and the rule
+    camera/<name>/NNNNNN.png     8-bit sRGB at the recorded size; grey where the recording's is grey
+    depth/<name>/NNNNNN.exr      float32 channel Z: z-depth in metres; inf = no return, NaN = invalid
+    lidar/<name>/NNNNNN.exr      one row of the recorded file's N points, in its order: X Y Z (sensor
+                                 frame, metres; NaN without a return) and range (metres along the
+                                 recorded point's direction; inf = no return, NaN = no direction)
+    mask/<name>/NNNNNN.png       (with people; camera streams) 16-bit instance mask: 0 background,
+                                 k + 1 = the trajectory's person k (a folder that no recording has)
+    boxes/<name>.json            (with people; camera streams) COCO-style person boxes per frame
 """
 
 from __future__ import annotations

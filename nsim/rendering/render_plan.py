@@ -220,3 +220,91 @@ def scene_is_metric(ctx: RunContext, scene: str) -> bool:
     """False when the scene was trained on poses of arbitrary scale (its scene.json says ``metric: false``)."""
     doc = json.loads(ctx.store.get(scene).file("scene.json").read_text())
     return doc.get("extra", doc).get("metric", True) is not False
+
+
+# ---------------------------------------------------------------------------------- the baked scene (method: baked)
+def resolve_baked(ctx: RunContext, spec: str, scene: str) -> str:
+    """The ``baked-scene`` artifact ``spec`` (``--baked``), checked: baked from the render's scene checkpoint."""
+    store = ctx.store
+    baked = store.resolve(spec)
+    art = store.get(baked)
+    if art.kind != "baked-scene":
+        raise InputError(f"--baked {spec}: a {art.kind} artifact; render needs a baked-scene artifact (nsim bake)")
+    made_from = art.manifest.get("inputs", {}).get("scene")
+    if made_from != scene:
+        raise InputError(f"--baked {spec}: baked from scene {str(made_from)[:12]}, the render's scene is {scene[:12]} "
+                         f"(nsim bake {scene[:12]})")
+    return baked
+
+
+def check_method(inputs, cfg) -> None:
+    """``--baked`` goes with ``method: baked`` only."""
+    if inputs.baked is not None and cfg.method != "baked":
+        raise InputError(f"--baked {inputs.baked[:12]}: renders from a baked scene need --set method=baked "
+                         f"(method is {cfg.method})")
+
+
+def baked_dir(inputs, cfg, ctx: RunContext, shard_root: Path) -> str | None:
+    """Where the shards read the baked scene (``method: baked``; None otherwise): the ``--baked`` artifact,
+    or one baked here with ``BakeConfig()``'s settings into ``shard_root/baked`` (written to a temp folder and
+    renamed: a rerun after a crash reuses it)."""
+    if cfg.method != "baked":
+        return None
+    if inputs.baked is not None:
+        return str(ctx.store.get(inputs.baked).path)
+    import os
+    import shutil
+    import uuid
+
+    from nsim.rendering import OccupancyGrid, load_model
+    from nsim.rendering.baked import BakeConfig, bake
+
+    dest = shard_root / "baked"
+    if not dest.is_dir():
+        scene = ctx.store.get(inputs.scene)
+        log.info("render: baking scene %s on demand (nsim bake + --baked to keep it)", scene.id[:12])
+        model = load_model(scene.path, ctx.device)
+        grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"), ctx.device)
+        tmp = shard_root / f".baked.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp"
+        tmp.mkdir()
+        try:
+            bake(model, grid, BakeConfig()).save(tmp, extra={"scene_checkpoint": scene.id})
+            os.rename(tmp, dest)
+        except OSError:
+            if not dest.is_dir():
+                raise
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return str(dest)
+
+
+def shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root) -> dict:
+    """What every shard worker needs, as plain data (paths, the rig as a dict, the seed, the device):
+    the render stage's resolved ``inputs`` and ``cfg``, the adapted ``rig`` (or None), the recording's
+    ``streams`` (or None), the ``shards`` and the folder they are rendered into."""
+    store = ctx.store
+    recording_dir = None
+    if inputs.registration:
+        recording_dir = str(store.get(store.get(inputs.registration).manifest["inputs"]["recording"]).path)
+    return {
+        "workspace": str(store.root),
+        "scene_dir": str(store.get(inputs.scene).path),
+        "human_dirs": [str(store.get(h).path) for h in inputs.humans],
+        "trajectory_file": str(store.get(inputs.trajectory).file("trajectory.npz")) if inputs.trajectory else None,
+        "rig": rig.to_dict() if rig is not None else None,
+        "recording_dir": recording_dir,
+        "streams": streams,
+        "seed": ctx.seed,
+        "device": str(ctx.device),
+        "shards": shards,
+        "baked_dir": baked_dir(inputs, cfg, ctx, shard_root),
+    }
+
+
+def load_rig(inputs, cfg):
+    """The rig of trajectory mode (scaled and filtered by the config: ``adapt_rig``), or None in the other modes."""
+    if inputs.rig is None or inputs.trajectory is None:
+        return None
+    from nsim.sensors.rig import Rig
+
+    return adapt_rig(Rig.load(inputs.rig), cfg)

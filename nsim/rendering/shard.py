@@ -9,7 +9,9 @@ and a ``frames.json`` of per-frame statistics that ``nsim.rendering.render_outpu
 
 ``job`` (built by the stage, plain JSON-able values): ``scene_dir``, ``human_dirs``,
 ``trajectory_file``, ``rig`` (``Rig.to_dict()``, trajectory mode), ``recording_dir`` and
-``streams`` (recording mode), ``seed``, ``device``, ``shards`` (the frames of each shard).
+``streams`` (recording mode), ``seed``, ``device``, ``shards`` (the frames of each shard),
+``baked_dir`` (``method: baked``: the baked scene, ``nsim.rendering.baked``, the scene is rendered from;
+the scene checkpoint still gives the rays' range, the background and ``fill``).
 ``cfg``: the stage's ``nsim.stages.render.Config``.
 
 Measurement is the rig's (``nsim.sensors.rig``): ``CameraSensor.expose`` (exposure, grey),
@@ -66,6 +68,15 @@ class ShardRenderer:
             else:
                 self.fill_rgb = torch.tensor(mean, dtype=torch.float32, device=self.device)
         self.grid = OccupancyGrid.load(scene_dir / "occupancy_grid.npy", device=self.device)
+        self.baked = None  # method: baked, the baked scene (nsim.rendering.baked) the scene is rendered from
+        if cfg.method == "baked":
+            from nsim.rendering.baked import BakedScene
+
+            self.baked = BakedScene.load(job["baked_dir"], device=self.device)
+            if self.baked.field_color_samples > 0:  # the heaviest samples' colour from the scene field
+                self.baked = self.baked.with_field(self.model.field)
+            if self.cfg.background != "scene":
+                self.baked = dataclasses.replace(self.baked, background=self.cfg.background)
         self.rig = None
         if job["rig"] is not None:
             from nsim.sensors.rig import Rig
@@ -96,7 +107,15 @@ class ShardRenderer:
                          self.model.aabb if sc.clip_rays_to_box else None)
         people = (self.humans.visible(posed, o, d, camera, cam_to_world, cfg.culling, t_min=near, t_max=far,
                                       valid=valid) if self.humans and posed else [])
-        if not people:
+        if self.baked is not None:
+            from nsim.rendering.baked import render_baked
+
+            out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people))
+            if people:  # the people's samples merged with the baked scene's, as with the NeRF's
+                out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg, scene_out=out)
+            else:
+                instance = np.zeros(len(o), dtype=np.uint16)
+        elif not people:
             out = render_rays(self.model, rays, cfg.method, self.grid, cfg.march, cfg.chunk_rays)
             instance = np.zeros(len(o), dtype=np.uint16)
         else:

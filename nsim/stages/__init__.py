@@ -26,6 +26,7 @@ STAGE_MODULES: dict[str, str] = {
     "export": "nsim.stages.export",
     "import-log": "nsim.stages.import_log",
     "register-log": "nsim.stages.register_log",
+    "bake": "nsim.stages.bake",
 }
 
 

@@ -13,63 +13,24 @@ Three modes:
     camera: what ``nsim evaluate`` compares with the captured images.
 ``recording``
     Exactly the recorded sensors of a ``registration`` (``nsim register-log``) of a ``recording``
-    (``nsim import-log``), so that sim and real frames pair one to one: per stream, per kept frame,
-    its stamp moved onto the odometry clock (``nsim.rendering.recording``), the body pose
-    interpolated in the registration's world trajectory, the stream's own camera model at its
-    recorded size, or (LiDAR) one ray along each recorded point's direction. Frames outside the
-    trajectory's span are skipped and counted. No sensor noise. With ``--trajectory`` and
-    ``--humans`` the run's people are drawn as in trajectory mode, posed at the frame's instant
-    (``nsim.rendering.people.HumanSet.joint_transforms_at``: interpolated between the run's ticks) on every stream, the
-    run's clock tied to the recording's by ``people_time_offset_s`` (``nsim.rendering.recording``:
-    0 = the run's first tick at the recording's first odometry stamp, as ``nsim capture robot-log``
-    records a run); frames outside the run's span are drawn without people and counted; the
-    robot's poses still come from the registration.
+    (``nsim import-log``), so that sim and real frames pair one to one: each kept frame at its stamp
+    moved onto the odometry clock, the body pose interpolated in the registration's trajectory, the
+    stream's own camera model (LiDAR: one ray per recorded point); no sensor noise. With
+    ``--trajectory`` and ``--humans`` the run's people are drawn too, posed at each frame's instant;
+    the clocks' rules are in :mod:`nsim.rendering.recording` and
+    :meth:`nsim.rendering.people.HumanSet.joint_transforms_at`.
 
-Artifact layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses)::
+The scene is rendered by the NeRF (``method: proposal``, the default, or ``march``) or from the scene baked
+into a sparse voxel grid (``method: baked``, ``nsim.rendering.baked``; the ``--baked`` artifact of ``nsim
+bake``, or one baked here with ``BakeConfig``'s defaults). People composite over either in depth order.
 
-    render.json                  mode, sensors, frames (index, time, name), conventions, the scene id
-    rig.json                     the resolved rig (mounts, intrinsics, LiDAR patterns)
-    robot.tum                    trajectory mode: the robot body pose at each rendered tick
-    cameras/<sensor>.json        per camera: transforms.json (intrinsics, cam_to_world per frame)
-    <camera>/rgb/NNNNNN.png      8-bit sRGB (gray cameras: one channel)
-    <camera>/rgb_linear/NNNNNN.exr   (rgb_exr: true) linear float16 R, G, B
-    <camera>/depth/NNNNNN.exr    float32 channel Z: the rig's depth kind (z-depth along the optical
-                                 axis unless the rig says range), metres; inf = no return, NaN =
-                                 no valid measurement; stated in the header (nsim_depth)
-    <camera>/mask/NNNNNN.png     (with humans) 16-bit instance mask: 0 background, k = human k
-    <camera>/boxes.json          (with humans) COCO-style person boxes per frame
-    <lidar>/scan/NNNNNN.exr      organised sweep (rows = beams, cols = azimuth): X Y Z (sensor
-                                 frame), range, intensity (= opacity), ring; see nsim.io.lidar_exr
-    <lidar>/scan/NNNNNN.ply      the returns as a point cloud (sensor frame)
-    preview/contact_sheet.png    every ``preview_every``-th frame: the cameras side by side + LiDAR BEV
-                                 (recording mode: each camera's recorded frame beside the rendered one,
-                                 the LiDAR's recorded points grey under the rendered ones)
-    preview/preview.mp4          (video: true) the same for every frame (H.264, ``nsim.io.video``)
+The artifact's layout (every mode) is in :mod:`nsim.rendering.render_output`'s docstring, beside the
+code that writes it.
 
-Recording mode mirrors the recording's layout, file for file, for the frames rendered (``NNNNNN``
-= the recording's own frame index, ``<name>`` the stream's)::
-
-    render.json                  mode "recording", the recording, registration and scene ids, per
-                                 stream: name, kind, frames (index, stamp_ns, odom_time_ns,
-                                 sensor_to_world 4 x 4; with people people_time_s) and
-                                 skipped_outside_trajectory (with people people_outside_run); with
-                                 people ``people``: trajectory, humans, people_time_offset_s, the run's
-                                 span, the first odometry stamp and the rule
-    camera/<name>/NNNNNN.png     8-bit sRGB at the recorded size; grey where the recording's is grey
-    depth/<name>/NNNNNN.exr      float32 channel Z: z-depth in metres; inf = no return, NaN = invalid
-    lidar/<name>/NNNNNN.exr      one row of the recorded file's N points, in its order: X Y Z (sensor
-                                 frame, metres; NaN without a return) and range (metres along the
-                                 recorded point's direction; inf = no return, NaN = no direction)
-    mask/<name>/NNNNNN.png       (with people; camera streams) 16-bit instance mask: 0 background,
-                                 k + 1 = the trajectory's person k (a folder that no recording has)
-    boxes/<name>.json            (with people; camera streams) COCO-style person boxes per frame
-
-Sharding: frames are cut into fixed shards of ``shard_frames``; each shard is rendered into its
-own directory under ``<workspace>/tmp/render.<key>.shards/`` and published there by an atomic
-rename, so a rerun after a crash renders only the missing shards. The artifact (and its
-manifest) is published last, from the complete set. Each shard draws its sensor noise from
-generators seeded by (seed, frame, sensor), so the result does not depend on the shard size,
-the engine or the number of workers.
+Sharding: frames are cut into shards of ``shard_frames``, each rendered into its own directory under
+``<workspace>/tmp/render.<key>.shards/`` (published by atomic rename: a rerun renders only the missing
+ones); the artifact is published last. Sensor noise is seeded by (seed, frame, sensor), so the result
+does not depend on the shard size, the engine or the number of workers.
 
 This module reads the inputs, keys the run and publishes; the work is the core's:
 ``nsim.rendering.render_plan`` (the adapted rig, the frames of each mode, the shards),
@@ -126,9 +87,10 @@ class Config:
     lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep (recording "
                                                                  "mode renders the recorded points: 1 only)")
     shard_frames: int = param(8, ge=1, help="frames per shard (the unit of resume and of distribution)")
-    method: str = param("proposal", choices=("proposal", "march"),
+    method: str = param("proposal", choices=("proposal", "march", "baked"),
                         help="march: constant steps with the occupancy grid and early termination; proposal: "
-                             "the proposal sampler the model trained with (fewer samples, faster on CPU)")
+                             "the proposal sampler the model trained with (fewer samples, faster on CPU); baked: "
+                             "the scene baked into a sparse voxel grid (nsim bake; --baked ID, else baked here)")
     march: MarchConfig = MarchConfig(step_m=0.01)
     chunk_rays: int = param(16384, ge=256)
     depth_estimate: str = param("median", choices=("median", "expected"),
@@ -158,7 +120,8 @@ class Config:
 class Inputs:
     """trajectory, poses or registration (exactly one; registration: ``--recording``, a registered
     recording, with which a trajectory only supplies the people); scene: a scene-checkpoint (default:
-    the one the trajectory names); rig: a rig file (trajectory mode); humans: human-checkpoint ids."""
+    the one the trajectory names); rig: a rig file (trajectory mode); humans: human-checkpoint ids;
+    baked: a baked-scene of the scene (``nsim bake``; ``method: baked`` only, which bakes one without it)."""
 
     trajectory: str | None = None
     poses: str | None = None
@@ -166,9 +129,12 @@ class Inputs:
     rig: Path | None = None
     humans: tuple[str, ...] = ()
     registration: str | None = None
+    baked: str | None = None
 
     def ids(self) -> dict[str, str]:
         out = {}
+        if self.baked:
+            out["baked"] = self.baked
         if self.trajectory:
             out["trajectory"] = self.trajectory
         if self.poses:
@@ -192,7 +158,15 @@ class Outputs:
 
 # ---------------------------------------------------------------------------------- resolving inputs
 def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
-    """Artifact ids resolved and checked (kinds, the scene checkpoint's presence)."""
+    """Artifact ids resolved and checked (kinds, the scene checkpoint's presence, a baked scene of that scene)."""
+    out = resolve_mode_inputs(inputs, ctx)
+    if inputs.baked is None:
+        return out
+    return dataclasses.replace(out, baked=render_plan.resolve_baked(ctx, inputs.baked, out.scene))
+
+
+def resolve_mode_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
+    """The mode's artifacts (trajectory, poses or registration), the scene and the people, resolved and checked."""
     store = ctx.store
     modes = (inputs.poses, inputs.registration, inputs.trajectory if inputs.registration is None else None)
     if sum(x is not None for x in modes) != 1:
@@ -264,17 +238,13 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     return Inputs(scene=scene, registration=reg, trajectory=traj, humans=humans)
 
 
-def load_rig_for(inputs: Inputs, cfg: Config):
-    """The rig (scaled and filtered by the config), or None in poses mode."""
-    if inputs.rig is None or inputs.trajectory is None:
-        return None
-    from nsim.sensors.rig import Rig
-
-    return render_plan.adapt_rig(Rig.load(inputs.rig), cfg)
-
-
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig) -> str:
     extra = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
+    if cfg.method == "baked" and inputs.baked is None:  # baked here: with BakeConfig()'s settings
+        from nsim.config import to_dict
+        from nsim.rendering.baked import BakeConfig
+
+        extra["bake"] = to_dict(BakeConfig())
     if rig is not None:
         extra["rig"] = hashlib.sha256(json.dumps(rig.to_dict(), sort_keys=True, default=str).encode()).hexdigest()
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
@@ -292,7 +262,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
 
     store = ctx.store
     inputs = resolve_inputs(inputs, ctx)
-    rig = load_rig_for(inputs, cfg)
+    render_plan.check_method(inputs, cfg)
+    rig = render_plan.load_rig(inputs, cfg)
     key = action_key(inputs, cfg, ctx, rig)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(render=hit.id, cache_hit=True)
@@ -307,19 +278,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
     shard_root.mkdir(parents=True, exist_ok=True)
     keys = [render_plan.shard_key(key, s) for s in shards]
     present = sum((shard_root / k).is_dir() for k in keys)
-    job = {
-        "workspace": str(store.root),
-        "scene_dir": str(store.get(inputs.scene).path),
-        "human_dirs": [str(store.get(h).path) for h in inputs.humans],
-        "trajectory_file": str(store.get(inputs.trajectory).file("trajectory.npz")) if inputs.trajectory else None,
-        "rig": rig.to_dict() if rig is not None else None,
-        "recording_dir": (str(store.get(store.get(inputs.registration).manifest["inputs"]["recording"]).path)
-                          if inputs.registration else None),
-        "streams": streams,
-        "seed": ctx.seed,
-        "device": str(ctx.device),
-        "shards": shards,
-    }
+    job = render_plan.shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root)
     factory = partial(ShardRenderer, job, cfg)
     done = run_shards(factory, list(range(len(shards))), shard_root, lambda i: keys[i], engine or EngineConfig(),
                       progress=ctx.show_progress)
@@ -328,6 +287,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
         summary = assemble(out.dir, inputs, cfg, rig, frames, [done[i] for i in range(len(shards))], ctx,
                            streams=streams, recording_dir=job["recording_dir"])
         out.summary.update(summary)
+        if cfg.method == "baked":
+            out.summary["baked_scene"] = inputs.baked or "baked by the render (BakeConfig defaults)"
     shutil.rmtree(shard_root, ignore_errors=True)
     return Outputs(render=out.ref, shards_rendered=len(shards) - present, shards_reused=present)
 
@@ -341,5 +302,5 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     inputs = Inputs(trajectory=ids.get("trajectory"), poses=ids.get("poses"), scene=ids.get("scene"),
                     rig=Path(rig_file) if rig_file else None,
                     humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")),
-                    registration=ids.get("registration"))
+                    registration=ids.get("registration"), baked=ids.get("baked"))
     return run(inputs, cfg, ctx).render

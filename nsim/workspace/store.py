@@ -73,7 +73,7 @@ FORMAT = 1
 MARKER = "nsim-workspace.json"
 MANIFEST = "manifest.json"
 KINDS = ("capture", "poses", "scene-checkpoint", "human-checkpoint", "trajectory", "render", "evaluation", "export",
-         "recording", "registration")
+         "recording", "registration", "baked-scene")
 SUBDIRS = ("objects", "actions", "refs", "tmp", "leases", "verified", "trash")
 # Manifest fields that describe one run rather than the content; they do not enter the id.
 VOLATILE_FIELDS = ("id", "timing")

@@ -1,0 +1,24 @@
+"""``nsim bake``."""
+
+from __future__ import annotations
+
+import click
+
+from nsim.commands.common import report_artifact, resolve_config, run_context, stage_options
+
+
+@click.command("bake")
+@stage_options("bake")
+@click.argument("scene")
+@click.pass_context
+def command(click_ctx, preset, config_file, overrides, force, tag, scene):
+    """Bake SCENE (a scene-checkpoint id, prefix or ref) into a sparse voxel grid for fast sensors
+    (nsim render --set method=baked --baked ID): a baked-scene artifact."""
+    from nsim.stages import bake
+
+    cfg = resolve_config(bake.Config, "bake", preset, config_file, overrides)
+    ctx = run_context(click_ctx, force)
+    out = bake.run(bake.Inputs(scene=scene), cfg, ctx)
+    if out.parts_reused:
+        click.echo(f"resumed: {out.parts_reused} part(s) of the lattice were already evaluated", err=True)
+    report_artifact(ctx, out.baked, out.cache_hit, tag)

@@ -1,0 +1,147 @@
+"""``nsim bake``: a scene checkpoint baked for fast sensors, as a ``baked-scene`` artifact.
+
+Input: a ``scene-checkpoint`` (``nsim train-scene``): its field and the occupancy grid baked at train
+time. The core (``nsim.rendering.baked``) puts a brick of lattice points into every occupied cell,
+stores the field's density and geometry features there, drops the bricks that hold no density and
+keeps the colour head with the mean appearance embedding; ``nsim render --set method=baked`` marches
+it (``--baked ID``, or baked on demand).
+
+Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
+
+    baked.json                 layout, sizes, the marcher's settings, the scene checkpoint's id, bake statistics
+    brick_index.npy            (X, Y, Z) int32: brick of each occupancy cell, -1 for none
+    density.npy                (N, (B + 1)^3) float32: density (1/m) at each brick's lattice points
+    features.npy               (N, (B + 1)^3, G) float16: the field's geometry features there
+    color_layer<k>_{weight,bias}.npy   the colour head (appearance folded into the first bias)
+
+Resume: the lattice is evaluated in parts of ``PART_POINTS`` points, each written to
+``<workspace>/tmp/bake.<key>.resume/`` as it is done; a killed bake started again with the same
+inputs, config and device evaluates only the missing parts and publishes the same artifact. The
+folder goes once the artifact is published. The device is part of the action key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nsim.config import from_dict
+from nsim.context import RunContext
+from nsim.errors import InputError
+from nsim.rendering.baked import BakeConfig
+
+STAGE = "bake"
+VERSION = 1
+PART_POINTS = 1 << 20  # lattice points per resume part
+
+log = logging.getLogger(__name__)
+
+Config = BakeConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """scene: a scene-checkpoint id, prefix or ref."""
+
+    scene: str
+
+    def ids(self) -> dict[str, str]:
+        return {"scene": self.scene}
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    baked: str
+    cache_hit: bool = False
+    parts_reused: int = 0
+
+
+def resolve_scene(spec: str, ctx: RunContext) -> str:
+    store = ctx.store
+    art_id = store.resolve(spec)
+    kind = store.get(art_id).kind
+    if kind != "scene-checkpoint":
+        raise InputError(f"bake {spec}: a {kind} artifact; bake needs a scene-checkpoint (nsim train-scene)")
+    if not store.get(art_id).file("occupancy_grid.npy").is_file():
+        raise InputError(f"bake {spec}: scene {art_id[:12]} has no occupancy_grid.npy to bake over")
+    return art_id
+
+
+def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
+    device = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
+    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra={"device": device})
+
+
+def resume_dir(ctx: RunContext, key: str) -> Path:
+    return ctx.store.root / "tmp" / f"{STAGE}.{key[:24]}.resume"
+
+
+def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
+    """Bake (or resume, or find in the run cache)."""
+    import torch
+
+    from nsim.rendering import OccupancyGrid, load_model
+    from nsim.rendering.baked import evaluate_lattice, finish_bake, plan_bake
+
+    store = ctx.store
+    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
+    key = action_key(inputs, cfg, ctx)
+    if not ctx.force and (hit := store.lookup(key)) is not None:
+        return Outputs(baked=hit.id, cache_hit=True)
+
+    art = store.get(inputs.scene)
+    t0 = time.perf_counter()
+    model = load_model(art.path, ctx.device).eval()
+    grid = OccupancyGrid.load(art.file("occupancy_grid.npy"), ctx.device)
+    plan = plan_bake(grid, cfg)
+    work = resume_dir(ctx, key)
+    work.mkdir(parents=True, exist_ok=True)
+    sig, feats, reused = [], [], 0
+    for a in range(0, plan.n_points, PART_POINTS):
+        b = min(plan.n_points, a + PART_POINTS)
+        part = (work / f"part_{a:012d}_density.npy", work / f"part_{a:012d}_features.npy")
+        if part[0].is_file() and part[1].is_file():
+            s, f = (torch.as_tensor(np.load(p, allow_pickle=False)).to(ctx.device) for p in part)
+            reused += 1
+        else:
+            pieces = [evaluate_lattice(model.field, plan, cfg, c, min(b, c + cfg.chunk_points))
+                      for c in range(a, b, cfg.chunk_points)]
+            s, f = torch.cat([p[0] for p in pieces]), torch.cat([p[1] for p in pieces])
+            for path, arr in ((part[1], f), (part[0], s)):  # density last: its presence marks a complete part
+                tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+                with open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
+                    np.save(fh, arr.cpu().numpy(), allow_pickle=False)
+                os.replace(tmp, path)
+        sig.append(s)
+        feats.append(f)
+    density = torch.cat(sig) if sig else torch.zeros(0, device=ctx.device)
+    features = torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=ctx.device)
+    baked = finish_bake(model, grid, plan, density, features, cfg)
+    bake_s = time.perf_counter() - t0
+    with store.publish(kind="baked-scene", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
+                       seed=ctx.seed) as out:
+        doc = baked.save(out.dir, extra={"scene_checkpoint": inputs.scene})
+        size = sum(p.stat().st_size for p in out.dir.iterdir() if p.is_file())
+        out.summary.update({"bricks": doc["bricks"], "bricks_per_side": doc["bricks_per_side"],
+                            "voxel_m": doc["voxel_m"], "occupied_cells": doc["occupied_cells"],
+                            "pruned_bricks": doc["pruned_bricks"], "size_mb": round(size / 1e6, 3)})
+        out.timing["bake_s"] = round(bake_s, 2)
+        if reused:
+            out.timing["parts_reused"] = reused
+    shutil.rmtree(work, ignore_errors=True)
+    log.info("bake: %d bricks of %d^3 voxels (%.1f MB) in %.1f s", doc["bricks"], doc["bricks_per_side"], size / 1e6,
+             bake_s)
+    return Outputs(baked=out.ref, parts_reused=reused)
+
+
+def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
+    cfg = from_dict(Config, manifest["config"])
+    ctx = dataclasses.replace(ctx, force=True)
+    return run(Inputs(scene=manifest["inputs"]["scene"]), cfg, ctx).baked

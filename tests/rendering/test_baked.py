@@ -1,0 +1,299 @@
+"""The baked scene (``nsim.rendering.baked``): the bake keeps the field's values, the fast marcher agrees with a
+plain dense twin, files round-trip byte for byte, bad files are one line, people composite over it."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nsim.errors import InputError
+from nsim.fields.scene_field import SceneFieldConfig
+from nsim.rendering import volume
+from nsim.rendering.baked import (
+    BakeConfig,
+    BakedScene,
+    ColorDecoder,
+    bake,
+    density_at,
+    features_at,
+    locate,
+    render_baked,
+    render_chunk,
+    steps,
+)
+from nsim.rendering.model import SamplerConfig, SceneModel
+from nsim.rendering.occupancy import OccupancyGrid
+from nsim.rendering.rays import Rays, make_rays
+
+AABB = torch.tensor([[0.0, 0.0, 0.0], [2.0, 1.6, 1.2]])
+FIELD = SceneFieldConfig(hash_levels=4, hash_log2_table_size=10, hash_base_resolution=4, hash_max_resolution=64,
+                         hidden_dim=16, geo_feat_dim=7, color_hidden_dim=16, color_hidden_layers=1, sh_degree=2,
+                         appearance_dim=4, backend="torch", density_bias=1.0, contract=False)
+SAMPLER = SamplerConfig(proposal_samples=(16, 8), proposal_hash_max_resolutions=(32, 64), final_samples=8,
+                        proposal_hash_log2_table_size=10, proposal_hash_levels=3, proposal_hidden_dim=8)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def model() -> SceneModel:
+    """An untrained field with structure: density exp(mlp + 1) that varies over the box by orders of magnitude."""
+    m = SceneModel(FIELD, SAMPLER, AABB, n_images=3, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        m.field.density_mlp.layers[-1].weight[0].mul_(8.0)  # sharpen the density: dense blobs and clear air
+    return m.eval()
+
+
+@pytest.fixture(scope="module")
+def grid(model) -> OccupancyGrid:
+    """An occupancy grid of 0.2 m cells at the field's median cell density (about half the cells occupied)."""
+    fn = lambda x: model.field.density(x)[0]  # noqa: E731
+    probe = torch.stack(torch.meshgrid(*(torch.linspace(0.1, float(s) - 0.1, 8) for s in AABB[1]), indexing="ij"),
+                        -1).reshape(-1, 3)
+    with torch.no_grad():
+        threshold = float(torch.quantile(fn(probe), 0.5))
+    g = OccupancyGrid.bake(fn, AABB, 0.2, threshold, samples_per_cell=2, dilate=0)
+    assert 0.2 < g.occupied_fraction < 0.8, g.occupied_fraction
+    return g
+
+
+@pytest.fixture(scope="module")
+def baked(model, grid) -> BakedScene:
+    return bake(model, grid, BakeConfig(voxel_m=0.05, prune_density=0.0))
+
+
+def some_rays(n: int = 300, seed: int = 3) -> Rays:
+    """Rays from points inside the box in all directions, clipped to the box (as the renderer's)."""
+    g = torch.Generator().manual_seed(seed)
+    o = AABB[0] + torch.rand(n, 3, generator=g) * (AABB[1] - AABB[0])
+    d = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    return make_rays(o, d, 0.05, 30.0, AABB)
+
+
+def dense_reference(baked: BakedScene, rays: Rays, field=None):
+    """The plain twin: every fine step from near to far, trilinear density and colour at every sample in a
+    brick, no coarse skipping, no early termination, no colour skipping; volume rendering as in volume.py.
+    With ``field``, every sample's colour from the field's own features at the sample."""
+    _, step_f, _ = steps(baked)
+    n_steps = int(math.ceil(float((rays.far - rays.near).max()) / step_f))
+    k = torch.arange(n_steps, dtype=torch.float32)
+    t0 = rays.near[:, None] + k * step_f
+    t1 = torch.minimum(t0 + step_f, rays.far[:, None])
+    t0 = torch.minimum(t0, rays.far[:, None])
+    mid = 0.5 * (t0 + t1)
+    x = rays.origins[:, None] + rays.dirs[:, None] * mid[..., None]
+    brick, local = locate(baked, x)
+    inside = (brick >= 0) & (t1 > t0)
+    sigma = torch.zeros_like(t0)
+    rgb = torch.zeros(*t0.shape, 3)
+    sigma[inside] = density_at(baked, brick[inside], local[inside])
+    r = torch.nonzero(inside, as_tuple=True)[0]
+    if field is None:
+        geo = features_at(baked, brick[inside], local[inside])
+    else:
+        with torch.no_grad():
+            geo = field.density(x[inside])[1]
+    rgb[inside] = baked.decoder(geo, rays.dirs[r])
+    w, _ = volume.render_weights(sigma, t1 - t0)
+    acc = w.sum(-1)
+    out = volume.accumulate(w, rgb) + (1 - acc)[:, None] * baked.background_rgb
+    depth = torch.where(acc > volume.EPS, volume.expected_depth(w, mid, acc), rays.far)
+    return out, depth, acc
+
+
+def test_bake_keeps_the_fields_values_at_the_lattice_points(model, grid, baked):
+    """supersample 1: each lattice point holds the field's density and features there; the decoder is the
+    field's colour head with the mean appearance code."""
+    assert baked.bricks_per_side == 4 and baked.n_bricks == int(grid.occupied.sum())
+    g = torch.Generator().manual_seed(5)
+    n = torch.randint(0, baked.n_bricks, (200,), generator=g)
+    abc = torch.randint(0, 5, (200, 3), generator=g)
+    cells = torch.nonzero(baked.brick_index >= 0)  # C order: brick n is the n-th occupied cell
+    x = AABB[0] + (cells[n] * 4 + abc).float() * baked.voxel_m
+    with torch.no_grad():
+        sigma, geo = model.field.density(x)
+    assert torch.equal(baked.brick_index[tuple(cells[n].T)].long(), n)
+    got = density_at(baked, n, abc.float())
+    torch.testing.assert_close(got, sigma, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(features_at(baked, n, abc.float()), geo, rtol=2e-3, atol=2e-3)  # float16 storage
+    dirs = torch.nn.functional.normalize(torch.randn(200, 3, generator=g), dim=-1)
+    codes = model.field.appearance_codes(None, 200, "mean", model.train_mask)
+    with torch.no_grad():
+        torch.testing.assert_close(baked.decoder(geo, dirs), model.field.color(geo, dirs, codes), rtol=1e-5, atol=1e-6)
+
+
+def test_matches_dense_reference_exactly_without_shortcuts(baked):
+    """Coarse skipping is exact: with early termination and colour skipping off, the fast marcher renders what
+    the dense twin renders."""
+    exact = dataclasses.replace(baked, stop_transmittance=0.0, color_skip_weight=0.0)
+    rays = some_rays()
+    out = render_chunk(exact, rays)
+    rgb, depth, acc = dense_reference(exact, rays)
+    assert 0.05 < float(acc.mean()) < 0.98 and float(acc.max()) > 0.9  # the rays see something, not everything
+    torch.testing.assert_close(out.accumulation, acc, rtol=0, atol=2e-5)
+    torch.testing.assert_close(out.rgb, rgb, rtol=0, atol=2e-5)
+    torch.testing.assert_close(out.depth, depth, rtol=0, atol=1e-4)
+
+
+def test_field_colour_for_the_heaviest_samples(baked, model):
+    """field_color_samples: the heaviest samples of each ray take their colour from the field's own features
+    (all of them here: the dense twin with the field's features); without the field attached, the baked ones."""
+    weights, biases = baked.decoder.arrays()
+    weights[0] = weights[0] * 30.0  # a colour head that shows its features (the untrained one is nearly flat)
+    sharp = ColorDecoder([torch.as_tensor(w) for w in weights], [torch.as_tensor(b) for b in biases], 2)
+    exact = dataclasses.replace(baked, stop_transmittance=0.0, color_skip_weight=0.0, field_color_samples=10**6,
+                                decoder=sharp)
+    rays = some_rays(120)
+    out = render_chunk(exact.with_field(model.field), rays)
+    rgb, _, _ = dense_reference(exact, rays, model.field)
+    torch.testing.assert_close(out.rgb, rgb, rtol=0, atol=5e-6)
+    plain, _, _ = dense_reference(exact, rays)
+    torch.testing.assert_close(render_chunk(exact, rays).rgb, plain, rtol=0, atol=5e-6)
+    # between lattice points the baked features only approximate the field's (this smooth field: closely)
+    assert float((rgb - plain).abs().max()) > 2e-5
+
+
+def test_shortcuts_stay_within_their_bounds(baked):
+    """Early termination at T < 1e-4 and colour skipping of at most 1e-3 of a ray's weight change a pixel by
+    less than 1.2e-3; they do skip work (fewer samples kept than the exact march keeps)."""
+    rays = some_rays()
+    opaque = dataclasses.replace(baked, density=baked.density * 30.0)  # most rays end inside the box
+    fast = render_chunk(opaque, rays, return_samples=True)
+    exact = render_chunk(dataclasses.replace(opaque, stop_transmittance=0.0, color_skip_weight=0.0), rays,
+                         return_samples=True)
+    assert float((exact.accumulation > 0.9999).float().mean()) > 0.5
+    assert float((fast.rgb - exact.rgb).abs().max()) < 1.2e-3
+    assert float((fast.accumulation - exact.accumulation).abs().max()) < 1.2e-4
+    kept = lambda o: int((o.samples.t_ends > o.samples.t_starts).sum())  # noqa: E731
+    assert kept(fast) < kept(exact)
+
+
+def test_chunks_do_not_change_the_result(baked):
+    """The chunk size changes float rounding only (padding lengths, matrix blocking); the same chunks give
+    the same bits with or without samples."""
+    rays = some_rays(250)
+    whole = render_baked(baked, rays, chunk=1000)
+    parts = render_baked(baked, rays, chunk=37)
+    for f in ("rgb", "depth", "depth_median", "accumulation", "background"):
+        torch.testing.assert_close(getattr(whole, f), getattr(parts, f), rtol=0, atol=1e-5)
+    with_samples = render_baked(baked, rays, chunk=37, return_samples=True)
+    assert torch.equal(with_samples.rgb, parts.rgb) and with_samples.samples.sigma.shape[0] == 250
+    assert len(render_baked(baked, rays[:0]).rgb) == 0
+
+
+def test_background_last_sample(baked):
+    """last_sample: the remaining light goes over the colour of the ray's last kept sample."""
+    rays = some_rays(200)
+    last = dataclasses.replace(baked, background="last_sample")
+    out = render_chunk(last, rays, return_samples=True)
+    s = out.samples
+    n_kept = (s.t_ends > s.t_starts).sum(-1)
+    has = n_kept > 0
+    assert bool(has.any())
+    idx = torch.nonzero(has, as_tuple=True)[0]
+    torch.testing.assert_close(out.background[idx], s.rgb[idx, n_kept[idx] - 1])
+    plain = render_chunk(baked, rays)
+    assert torch.equal(plain.background, baked.background_rgb.expand(200, 3))
+
+
+def test_save_load_round_trip_and_same_bytes(baked, model, grid, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    baked.save(a)
+    bake(model, grid, BakeConfig(voxel_m=0.05, prune_density=0.0)).save(b)  # baked again: the same files
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir()) and "baked.json" in names
+    assert all((a / n).read_bytes() == (b / n).read_bytes() for n in names)
+    back = BakedScene.load(a)
+    rays = some_rays(100)
+    for f in ("rgb", "depth", "accumulation"):
+        assert torch.equal(getattr(render_baked(back, rays), f), getattr(render_baked(baked, rays), f))
+
+
+def test_pruning_drops_bricks_without_density(model, grid):
+    full = bake(model, grid, BakeConfig(voxel_m=0.1, prune_density=0.0))
+    high = float(full.density.amax(-1).median())
+    pruned = bake(model, grid, BakeConfig(voxel_m=0.1, prune_density=high))
+    assert 0 < pruned.n_bricks < full.n_bricks
+    assert float(pruned.density.amax(-1).min()) >= high
+    assert pruned.meta["pruned_bricks"] == full.n_bricks - pruned.n_bricks
+
+
+def test_bad_files_are_one_line(baked, tmp_path):
+    with pytest.raises(InputError, match="not a baked scene"):
+        BakedScene.load(tmp_path)
+    d = tmp_path / "b"
+    d.mkdir()
+    baked.save(d)
+    np.save(d / "density.npy", np.zeros((3, 2), dtype=np.float32))
+    with pytest.raises(InputError, match="density.npy") as e:
+        BakedScene.load(d)
+    assert "\n" not in str(e.value)
+    baked.save(d)
+    np.save(d / "density.npy", -baked.density.numpy())
+    with pytest.raises(InputError, match="negative"):
+        BakedScene.load(d)
+
+
+def test_decoder_folds_the_appearance_code(model):
+    g = torch.Generator().manual_seed(9)
+    code = torch.randn(4, generator=g)
+    dec = ColorDecoder.from_field(model.field, code)
+    geo = torch.randn(50, 7, generator=g)
+    dirs = torch.nn.functional.normalize(torch.randn(50, 3, generator=g), dim=-1)
+    with torch.no_grad():
+        torch.testing.assert_close(dec(geo, dirs), model.field.color(geo, dirs, code.expand(50, 4)))
+
+
+def test_people_composite_over_the_baked_scene(baked):
+    """``HumanSet.composite`` with the baked scene's samples: the same depth-ordered merge as
+    ``compositing.composite_sets`` of the baked samples and the person's."""
+    from types import SimpleNamespace
+
+    from nsim.human.gait import walk_cycle
+    from nsim.human.motion import LocomotionLoop
+    from nsim.human.nerf import HumanModel, HumanModelConfig
+    from nsim.human.skeleton import forward_kinematics, nsim_skeleton
+    from nsim.rendering.compositing import composite_sets
+    from nsim.rendering.model import RaySamples
+    from nsim.rendering.people import HumanSet
+
+    cfg_h = HumanModelConfig(hash_levels=4, hash_log2_table_size=10, hash_max_resolution=64, hidden_dim=16,
+                             color_hidden_dim=16, samples_per_ray=16)
+    skeleton = nsim_skeleton(0.9)
+    person = HumanModel(cfg_h, skeleton, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        person.field.density_mlp.layers[-1].bias.fill_(6.0)  # opaque: the person holds its rays
+    person.eval()
+    loop = LocomotionLoop.from_clip(walk_cycle(1.3, 0.9))
+    root, quats = loop.pose_at(np.array([0.3]), np.array([[1.0, 0.8]]), np.array([0.0]))
+    T = forward_kinematics(skeleton, quats[0], root[0])
+    n = 40
+    target = torch.tensor(T[0, :3, 3], dtype=torch.float32) + torch.stack(
+        [torch.zeros(n), torch.zeros(n), torch.linspace(-0.3, 0.3, n)], -1)
+    origins = torch.tensor([[0.05, 0.8, 0.6]]).expand(n, 3).contiguous()
+    rays = make_rays(origins, torch.nn.functional.normalize(target - origins, dim=-1), 0.05, 30.0, AABB)
+    light = dataclasses.replace(baked, density=baked.density * 0.05)  # a haze before and behind the person
+    scene = render_baked(light, rays, return_samples=True)
+    people = [{"k": 0, "T": T, "model": person, "mask": torch.ones(n, dtype=torch.bool)}]
+    cfg = SimpleNamespace(method="baked", march=None, chunk_rays=1024, culling=True)
+    out, instance = HumanSet([person], {}, "cpu").composite(None, None, rays, people, cfg,
+                                                            scene_out=dataclasses.replace(scene, rgb=scene.rgb.clone()))
+    with torch.no_grad():
+        hs = person.render_samples(rays.origins, rays.dirs, torch.as_tensor(T, dtype=torch.float32), rays.near,
+                                   rays.far, box_test=True)
+    live = (hs.t_ends > hs.t_starts).any(-1)
+    assert bool(live.any())
+    sets = [RaySamples(*(getattr(s, f)[live] for f in ("t_starts", "t_ends", "sigma", "rgb"))) for s in (scene.samples, hs)]
+    ref, _ = composite_sets(*sets, background_rgb=scene.background[live])
+    torch.testing.assert_close(out.rgb[live], ref.rgb)
+    assert torch.equal(out.rgb[~live], scene.rgb[~live])
+    assert int((instance > 0).sum()) > 0
