@@ -35,7 +35,8 @@ its body is projected out of them (the executed velocity then differs from the c
 Sensor frames: ``closed_loop`` may be given a :class:`SensorHook` (a renderer and a rate); on the
 ticks due at that rate the observation's ``render_sensor(name)`` renders the named sensor at the
 robot's current body-to-world pose through it (lazily: only what the controller asks for). The
-simulate stage does not pass one yet (no scene renderer is wired to it), so there it is None.
+simulate stage passes one when the scenario has ``robot.sensors`` (a scene checkpoint rendered by
+``nsim.crowd.sensors.SceneSensors``, without people); otherwise it is None.
 """
 
 from __future__ import annotations

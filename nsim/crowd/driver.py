@@ -82,15 +82,20 @@ def crowd_state(sc: Scenario) -> CrowdState:
     )
 
 
-def simulate(sc: Scenario, forces, behaviours, dt_s: float, duration_s: float, seed: int) -> Simulation:
-    """Roll the scenario out for ``duration_s`` at ``dt_s`` (``rollout`` seeded with ``seed``)."""
+def simulate(sc: Scenario, forces, behaviours, dt_s: float, duration_s: float, seed: int,
+             sensors: ctl.SensorHook | None = None) -> Simulation:
+    """Roll the scenario out for ``duration_s`` at ``dt_s`` (``rollout`` seeded with ``seed``).
+
+    sensors: rendered frames for the controller (``closed_loop``); only with a controller."""
     ticks = duration_s / dt_s
     if ticks > MAX_TICKS:
         raise InputError(f"{sc.source}: duration_s / dt_s = {ticks:.0f} ticks, more than {MAX_TICKS}")
     n_steps = max(1, int(round(ticks)))
     time_s = np.arange(n_steps + 1) * dt_s
     if sc.robot.controller != "replay":
-        return closed_loop(sc, make_controller(sc, forces), forces, behaviours, dt_s, n_steps, seed)
+        return closed_loop(sc, make_controller(sc, forces), forces, behaviours, dt_s, n_steps, seed, sensors)
+    if sensors is not None:
+        raise InputError(f"{sc.source}: robot.sensors: rendered sensor frames are for a controller (robot.controller)")
     poses = sc.robot.poses_at(time_s)
     track = RobotTrack(
         poses[:, :2, 3], yaw_of_poses(poses), radius_m=sc.robot.radius_m, half_length_m=sc.robot.half_length_m

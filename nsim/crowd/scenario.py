@@ -44,6 +44,8 @@ Robot (body frame: x forward, y left, z up; ``RobotSpec``)
     (``max_speed_mps``, ``max_yaw_rate_radps``; Spot's by default) and see the people within
     ``sensor_range_m`` (``nsim.crowd.controllers``). A user's class is imported when the scenario is
     read (errors name ``robot.controller.python``); a file's path is stored absolute with its SHA-256.
+    ``sensors`` (scene checkpoints and controllers only) gives the controller rendered frames of a
+    rig's named sensors at ``rate_hz``; its rig is stored resolved (``nsim.crowd.sensors``).
 Humans (``HumanSpec``)
     Start, waypoints walked in straight lines (``loop``: a waypoint loop, else a goal list ending at
     the last), behaviour, walking-group id, body height and radius, desired speed, motion clip name
@@ -72,6 +74,7 @@ from nsim.crowd.controllers import SENSOR_RANGE_M, RobotLimits, resolve_python_s
 from nsim.crowd.neighbours import points_in_polygons, segments_from_polygons
 from nsim.crowd.paths import clearance_m, enclosed, leg_crossings, ring_problem, waypoint_poses, yaw_of_poses
 from nsim.crowd.schema import SchemaValidator, SchemaViolation, describe, format_path
+from nsim.crowd.sensors import SensorsSpec
 from nsim.errors import InputError, NsimError
 from nsim.geometry.transforms import interpolate_poses
 
@@ -190,7 +193,7 @@ class RobotSpec:
 
     controller: ``"replay"`` (follow the poses), ``"social_force"``, ``"orca"`` or a resolved
     ``{"python", "params", ...}`` entry (``nsim.crowd.controllers``); limits, sensor_range_m: for a
-    controller. goals_m: (G, 2) the goals a controller heads for in turn (the trajectory's waypoints,
+    controller. sensors: rendered frames for the controller (``nsim.crowd.sensors``), or None. goals_m: (G, 2) the goals a controller heads for in turn (the trajectory's waypoints,
     or its poses' positions), cycled when goals_loop; speed_mps: its cruising speed (the waypoint
     trajectory's, else 1 m/s).
     """
@@ -204,6 +207,7 @@ class RobotSpec:
     controller: str | Mapping[str, Any] = "replay"
     limits: RobotLimits = RobotLimits()
     sensor_range_m: float = SENSOR_RANGE_M
+    sensors: SensorsSpec | None = None
     goals_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
     goals_loop: bool = False
     speed_mps: float = 1.0
@@ -368,6 +372,7 @@ def parse_scenario(data: Any, *, source: str, base_dir: Path | None = None) -> S
     spec = ScenarioSpec(source, d, base_dir)
     _inline_tum(spec, d)
     _check_controller(spec, d)
+    _check_sensors(spec, d)
     _check_humans(spec, d)
     _check_poses(spec, d)
     return spec
@@ -408,6 +413,28 @@ def _check_controller(spec: ScenarioSpec, d: dict) -> None:
     if "code_sha256" in entry and entry["code_sha256"] != resolved.get("code_sha256"):
         raise spec.error(("robot", "controller", "code_sha256"), "does not match the controller file's content")
     entry.update(resolved)
+
+
+def _check_sensors(spec: ScenarioSpec, d: dict) -> None:
+    """``robot.sensors`` (``nsim.crowd.sensors``): a scene checkpoint and a controller to use the frames;
+    its rig resolved (in place) and its names the rig's."""
+    entry = d["robot"].get("sensors")
+    if entry is None:
+        return
+    from nsim.crowd.sensors import resolve_rig
+
+    if "checkpoint" not in d["scene"]:
+        raise spec.error(("robot", "sensors"), "rendered sensor frames need a scene checkpoint (scene: {checkpoint: "
+                         f"REF}}); this scene is {', '.join(sorted(d['scene']))}")
+    if d["robot"].get("controller", "replay") == "replay":
+        raise spec.error(("robot", "sensors"), "rendered sensor frames are for a controller (robot.controller); "
+                         "the replayed robot would not use them")
+    entry["rig"] = resolve_rig(entry["rig"], spec.base_dir, lambda m: spec.error(("robot", "sensors", "rig"), m))
+    has = [s["name"] for s in entry["rig"]["sensors"]]
+    for k, name in enumerate(entry["names"]):
+        if name not in has:
+            raise spec.error(("robot", "sensors", "names", k), f"the rig {entry['rig']['name']!r} has no sensor "
+                             f"{describe(name)} (has {', '.join(has)})")
 
 
 def _check_humans(spec: ScenarioSpec, d: dict) -> None:
@@ -627,6 +654,7 @@ def _robot_spec(d: dict) -> RobotSpec:
         controller=copy.deepcopy(r.get("controller", "replay")),
         limits=RobotLimits(**r.get("limits", {})),
         sensor_range_m=float(r.get("sensor_range_m", SENSOR_RANGE_M)),
+        sensors=SensorsSpec.from_data(copy.deepcopy(r["sensors"])) if "sensors" in r else None,
         goals_m=goals,
         goals_loop=goals_loop,
         speed_mps=speed,

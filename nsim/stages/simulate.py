@@ -37,6 +37,8 @@ returned it, and ``robot_executed_body (T - 1, 3)``, the motion from tick k to k
 robot's limits, stopped by walls), both ``(vx_mps, vy_mps, yaw_rate_radps)`` in the body frame at
 tick k; metrics.json's ``run`` names the controller and counts the ticks whose command was not
 executed as given. A replayed robot's artifact has neither (its bytes are those of earlier versions).
+With ``robot.sensors`` the controller also gets frames of the scene checkpoint rendered on ``--device``
+(``nsim.crowd.sensors``); they are not kept: ``run.sensor_frames`` counts them per sensor.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from nsim.crowd.scenario import (
     read_scenario,
     resolve_scenario,
 )
+from nsim.crowd.sensors import scene_sensors
 from nsim.crowd.social_force import ForceParams
 from nsim.crowd.sweep import SweepSpec
 from nsim.errors import NsimError
@@ -160,9 +163,10 @@ def rollout_seed(ctx: RunContext, sc) -> int:
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
-    return ctx.store.action_key(
-        STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra={"scenario": inputs.scenario.digest}
-    )
+    extra = {"scenario": inputs.scenario.digest}  # it covers robot.sensors (the resolved rig, names, rate)
+    if inputs.scenario.robot.sensors is not None:  # rendered frames also depend on the device
+        extra["device"] = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
+    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
@@ -173,8 +177,11 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         return Outputs(trajectory=hit.id, cache_hit=True)
 
     dt_s, duration_s = effective_times(sc, cfg)
-    sim = simulate(sc, cfg.forces, cfg.behaviours, dt_s, duration_s, rollout_seed(ctx, sc))
+    cam = scene_sensors(sc, store, ctx.device)  # robot.sensors: the scene rendered without people
+    sim = simulate(sc, cfg.forces, cfg.behaviours, dt_s, duration_s, rollout_seed(ctx, sc), cam and cam.hook())
     metrics = run_metrics(sc, sim, cfg.forces)
+    if cam is not None:  # the frames are not kept: how many of each sensor the controller asked for
+        metrics["run"]["sensor_frames"] = dict(cam.frames_rendered)
     with store.publish(
         kind="trajectory",
         stage=STAGE,
@@ -185,17 +192,9 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         seed=ctx.seed,
     ) as out:
         write_trajectory(out.dir, sc, sim, metrics, cfg)
-        out.summary.update(
-            {
-                "scenario": sc.name,
-                "scenario_digest": sc.digest,
-                "humans": len(sc.humans),
-                "ticks": len(sim.time_s),
-                "dt_s": dt_s,
-                "duration_s": float(sim.time_s[-1]),
-                **{k: metrics["hunav"][k] for k in SUMMARY_METRICS},
-            }
-        )
+        out.summary.update({"scenario": sc.name, "scenario_digest": sc.digest, "humans": len(sc.humans),
+                            "ticks": len(sim.time_s), "dt_s": dt_s, "duration_s": float(sim.time_s[-1]),
+                            **{k: metrics["hunav"][k] for k in SUMMARY_METRICS}})
     return Outputs(trajectory=out.ref)
 
 
