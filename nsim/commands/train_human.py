@@ -15,7 +15,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--data", "folder", type=click.Path(file_okay=False), default=None,
               help="A folder of frames, skeleton poses and masks (docs/human_data.md).")
 @click.option("--video", type=click.Path(dir_okay=False), default=None,
-              help="A video of one person in front of a static camera: masks and poses are found "
+              help="A video of one person (static or handheld camera): masks and poses are found "
                    "automatically (needs nsim[people]).")
 @click.option("--images", type=click.Path(file_okay=False), default=None,
               help="A folder of frames (jpg/png, in name order) of one person, as --video.")
@@ -25,13 +25,16 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
               help="--video/--images: the camera's height above the floor in metres (sets the scale).")
 @click.option("--person-height", "person_height_m", type=click.FloatRange(0.5, 2.5), default=None,
               help="--video/--images: the person's height in metres (sets the scale instead).")
+@click.option("--camera", "camera_mode", type=click.Choice(["auto", "static", "moving"]), default="auto",
+              show_default=True, help="--video/--images: the camera; auto: moving when the background moves "
+                                      "(its path by SfM with the person masked out).")
 @click.option("--fps", "images_fps", type=click.FloatRange(0.1, 240.0, min_open=False), default=30.0,
               show_default=True, help="--images: the frames' rate.")
 @click.option("--scene", default=None, help="Scene checkpoint to composite over while training (optional).")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Training steps (sets optim.steps=).")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, capture, folder, video, images, fov_deg,
-            camera_height_m, person_height_m, images_fps, scene, steps):
+            camera_height_m, person_height_m, camera_mode, images_fps, scene, steps):
     """Train a person's NeRF, driven by its skeleton: a human-checkpoint artifact."""
     from nsim.human.person_video import PersonVideoConfig
     from nsim.stages import train_human
@@ -44,7 +47,7 @@ def command(click_ctx, preset, config_file, overrides, force, tag, capture, fold
     person = None
     if video is not None or images is not None:
         cfg_person = PersonVideoConfig(hfov_deg=fov_deg, camera_height_m=camera_height_m,
-                                       body_height_m=person_height_m)
+                                       body_height_m=person_height_m, camera=camera_mode)
         person = PersonSource(Path(video or images), kind="video" if video else "images", images_fps=images_fps,
                               person=cfg_person)
     elif any(x is not None for x in (fov_deg, camera_height_m, person_height_m)):

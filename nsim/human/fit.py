@@ -440,9 +440,10 @@ def right_jacobian_so3(v: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ImageLandmarks:
-    """Where a static pinhole camera saw the landmarks: a reprojection term for ``fit_poses``.
+    """Where a pinhole camera saw the landmarks: a reprojection term for ``fit_poses``.
 
-    uv_px: (F, L, 2) pixels (NaN where unseen). world_to_cam: (4, 4), OpenCV camera axes.
+    uv_px: (F, L, 2) pixels (NaN where unseen). world_to_cam: (4, 4) for a static camera or
+    (F, 4, 4), one per frame, for a moving one; OpenCV camera axes.
     fx, fy, cx, cy: the pinhole intrinsics. sigma_px: reprojection errors are divided by it, so a
     landmark ``sigma_px`` off in the image costs as much as one 1 m off in 3D at weight 1.
     """
@@ -457,8 +458,15 @@ class ImageLandmarks:
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels ``(..., 2)`` of world points ``(..., 3)`` and ``d uv / d point`` ``(..., 2, 3)``."""
-        R, t = self.world_to_cam[:3, :3], self.world_to_cam[:3, 3]
-        pc = points @ R.T + t
+        w2c = np.asarray(self.world_to_cam)
+        if w2c.ndim == 3:  # one camera per frame: points (F, ..., 3)
+            extra = (1,) * (points.ndim - 2)
+            R = w2c[:, :3, :3].reshape(w2c.shape[0], *extra, 3, 3)
+            t = w2c[:, :3, 3].reshape(w2c.shape[0], *extra, 3)
+            pc = (R @ points[..., None])[..., 0] + t
+        else:
+            R, t = w2c[:3, :3], w2c[:3, 3]
+            pc = points @ R.T + t
         z = np.maximum(pc[..., 2], 0.05)
         uv = np.stack([self.fx * pc[..., 0] / z + self.cx, self.fy * pc[..., 1] / z + self.cy], axis=-1)
         D = np.zeros(points.shape[:-1] + (2, 3))

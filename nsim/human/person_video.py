@@ -8,7 +8,8 @@ in (a detector's ``nsim.human.landmarks.Observations``), arrays out (``PersonFit
    ``max_crowded_fraction`` of the frames where someone was found; too few frames left;
 2. drops the frames without the person or with a second person in view, and reports them as
    stretches (``DroppedStretch``: first and last frame, why);
-3. places the landmarks in a metric z-up world seen by a static camera (``nsim.human.monocular``);
+3. places the landmarks in a metric z-up world seen by a static camera (``nsim.human.monocular``),
+   or by a moving camera whose path SfM found (``nsim.human.moving_camera``; ``camera_path``);
 4. estimates the person's bone lengths once and fits joint angles per frame to the landmarks in
    3D and to where the camera saw them (``nsim.human.fit``).
 
@@ -33,6 +34,9 @@ from nsim.human.monocular import place_landmarks, static_camera
 REFERENCE_WIDTH_PX = 480
 """``PersonVideoConfig.sigma_px`` is given for frames this wide (it scales with the width)."""
 
+CAMERA_MODES = ("auto", "static", "moving")
+"""``PersonVideoConfig.camera``: auto tells a moving camera by the background's motion (``nsim.human.moving_camera``)."""
+
 NO_PERSON, CROWDED, UNPLACED = "no person", "another person in view", "could not be placed"
 """Why a frame is dropped."""
 
@@ -49,6 +53,8 @@ class PersonVideoConfig:
     sigma_px: the detector's 2D landmark error, in pixels at ``REFERENCE_WIDTH_PX`` wide frames: the
         fit weighs a landmark's reprojection error in these units against its 3D error in metres.
     fit: the skeleton fit's weights.
+    camera: ``CAMERA_MODES``: static, moving (its path found by SfM with the person masked out), or
+        auto (moving when the background moves between frames).
     """
 
     hfov_deg: float | None = None
@@ -58,8 +64,11 @@ class PersonVideoConfig:
     max_crowded_fraction: float = 0.1
     sigma_px: float = 4.0
     fit: FitConfig = field(default_factory=FitConfig)
+    camera: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.camera not in CAMERA_MODES:
+            raise ValueError(f"PersonVideoConfig.camera: expected one of {CAMERA_MODES}, got {self.camera!r}")
         if self.hfov_deg is not None and not (10.0 <= self.hfov_deg <= 170.0):
             raise ValueError(f"PersonVideoConfig.hfov_deg: must be in [10, 170], got {self.hfov_deg!r}")
         if self.camera_height_m is not None and not (0.1 <= self.camera_height_m <= 20.0):
@@ -94,8 +103,8 @@ class DroppedStretch:
 class PersonFit:
     """The person in the kept frames (K of the video's N).
 
-    frames: (K,) int64 video frame indices kept. camera: the static camera's intrinsics.
-    cam_to_world: (4, 4) OpenCV axes, the same in every frame. camera_height_m, scale: see
+    frames: (K,) int64 video frame indices kept. camera: the camera's intrinsics.
+    cam_to_world: (4, 4) OpenCV axes, the same in every frame (a static camera), or (K, 4, 4) (moving). camera_height_m, scale: see
     ``nsim.human.monocular.Placement``. poses: the fit (root trajectory in the world).
     masks: (K, H, W) bool person masks. dropped: stretches of frames left out.
     fps: the video's frame rate.
@@ -145,11 +154,13 @@ def _stretches(frames: np.ndarray, reason: str) -> list[DroppedStretch]:
 
 
 def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVideoConfig(),
-               source: str = "video") -> PersonFit:
-    """Find, place and fit the one person of a static camera's frames (module docstring).
+               source: str = "video", camera_path=None) -> PersonFit:
+    """Find, place and fit the one person of a camera's frames (module docstring).
 
     obs: the detector's results for every frame; fps: frames per second; source: names the input
-    in error messages. Bad input raises a one-line ``InputError``.
+    in error messages. camera_path: a moving camera (``nsim.human.moving_camera.CameraPath``, one
+    pose per frame of ``obs``, NaN where SfM did not register it); None: a static camera.
+    Bad input raises a one-line ``InputError``.
     """
     if not (math.isfinite(fps) and fps > 0):
         raise InputError(f"{source}: frame rate must be > 0, got {fps!r}")
@@ -167,10 +178,18 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
         raise InputError(f"{source}: more than one person in {int(crowded.sum())} of {int(found.sum())} frames "
                          f"(first at {first / fps:.1f} s): film one person at a time")
     keep = found & ~crowded
-    camera = static_camera(obs.width, obs.height, cfg.hfov_deg)
     try:
-        placed = place_landmarks(obs.body_m[keep], obs.image_uv_px[keep], obs.visibility[keep], camera,
-                                 cfg.camera_height_m, cfg.body_height_m)
+        if camera_path is None:
+            camera = static_camera(obs.width, obs.height, cfg.hfov_deg)
+            placed = place_landmarks(obs.body_m[keep], obs.image_uv_px[keep], obs.visibility[keep], camera,
+                                     cfg.camera_height_m, cfg.body_height_m)
+        else:
+            from nsim.human.moving_camera import place_landmarks_moving
+
+            camera = camera_path.camera
+            placed = place_landmarks_moving(obs.body_m[keep], obs.image_uv_px[keep], obs.visibility[keep], camera,
+                                            np.asarray(camera_path.cam_to_world)[keep], camera_path.points_xyz,
+                                            cfg.camera_height_m, cfg.body_height_m, np.flatnonzero(keep) / fps)
     except ValueError as err:
         raise InputError(f"{source}: cannot place the person in 3D ({err})") from None
     unplaced = np.zeros(N, dtype=bool)
@@ -185,7 +204,8 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     rows = (placed.weights > 0).any(axis=1)  # rows of the kept-before-placing frames that were placed
     lm, w = placed.landmarks_m[rows], placed.weights[rows]
     frames = np.flatnonzero(keep)
-    image = ImageLandmarks(obs.image_uv_px[frames], np.linalg.inv(placed.cam_to_world), camera.fx, camera.fy,
+    cam_to_world = placed.cam_to_world if placed.cam_to_world.ndim == 2 else placed.cam_to_world[rows]
+    image = ImageLandmarks(obs.image_uv_px[frames], np.linalg.inv(cam_to_world), camera.fx, camera.fy,
                            camera.cx, camera.cy, sigma_px=cfg.sigma_px * obs.width / REFERENCE_WIDTH_PX)
     try:
         body = estimate_body(lm, w)
@@ -193,8 +213,8 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     except ValueError as err:
         raise InputError(f"{source}: cannot fit a skeleton to the person ({err})") from None
     masks = obs.person_masks[frames] >= MASK_THRESHOLD
-    return PersonFit(frames, camera, placed.cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
+    return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
                      tuple(dropped), float(fps))
 
 
-__all__ = ["CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person"]
+__all__ = ["CAMERA_MODES", "CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person"]

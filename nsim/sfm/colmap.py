@@ -635,8 +635,12 @@ def run_sfm(
     known_camera: Camera | None = None,
     image_names: list[str] | None = None,
     progress: ProgressFn | None = None,
+    mask_dir: str | os.PathLike | None = None,
 ) -> SfmResult:
     """Reconstruct the images ``image_names`` (default: every jpg/jpeg/png) of ``image_dir``.
+
+    mask_dir: optional feature masks, COLMAP's convention: ``<mask_dir>/<image name>.png``, no
+    features where the mask is 0 (e.g. a person walking through the view).
 
     work_dir receives COLMAP's database, the vocabulary and one model folder per mapping
     attempt (it is emptied first). ``known_camera`` fixes the intrinsics of every image (kept
@@ -647,7 +651,7 @@ def run_sfm(
     images registered; the message says what to change.
     """
     with colmap_log_level(), native_stderr_to_log():
-        return _run_sfm(Path(image_dir), Path(work_dir), options, known_camera, image_names, progress)
+        return _run_sfm(Path(image_dir), Path(work_dir), options, known_camera, image_names, progress, mask_dir)
 
 
 _NATIVE_LINE = re.compile(r"^([IWEF]\d{8} |WARNING clustering |Clustering |Sampling )")
@@ -689,7 +693,8 @@ def native_stderr_to_log() -> Iterator[None]:
 
 
 def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera: Camera | None,
-             image_names: list[str] | None, progress: ProgressFn | None) -> SfmResult:
+             image_names: list[str] | None, progress: ProgressFn | None,
+             mask_dir: str | os.PathLike | None = None) -> SfmResult:
     from nsim.sfm.frames import MIN_IMAGES, list_image_files
 
     t_start = time.perf_counter()
@@ -728,6 +733,8 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
     report("features", 0, n)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = model
+    if mask_dir is not None:
+        reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = options.num_threads
     extraction.use_gpu = device == pycolmap.Device.cuda

@@ -4,7 +4,9 @@ Input: a capture artifact made with ``nsim capture synth --actor`` (the test roo
 person), or a folder in the documented human data format (docs/human_data.md: transforms.json +
 images, ``poses.json`` or ``poses.bvh`` aligned to the frames, ``masks/``) so a lab can bring its
 own pose estimator; a folder's files are digested into the action key. Or a video (``--video``) or a
-folder of frames (``--images``) of one person in front of a static camera: masks, a metric camera and
+folder of frames (``--images``) of one person, filmed by a static or a handheld camera (told apart by
+the background's motion; a moving camera's path by nsim's SfM with the person masked out,
+``nsim.human.moving_camera``): masks, a metric camera per frame and
 per-frame skeleton poses are found automatically and offline (``nsim.train.human_data_video``, which
 needs the ``nsim[people]`` extra), written as that format under ``tmp/``, then trained on as above;
 the artifact then also holds ``person.bvh`` (the person's own motion) and ``person_fit.json``

@@ -7,11 +7,13 @@
 2. reads the frames (``read_person_frames``): every frame of a video, thinned to at most
    ``max_fps`` and shrunk to at most ``max_width`` pixels wide, or the images of a folder in
    name order at ``images_fps``;
-3. finds and fits the person (``nsim.human.person_video.fit_person``: masks, a static metric
-   camera, bone lengths and per-frame joint angles; bad input is a one-line ``InputError``);
+3. finds and fits the person (``nsim.human.person_video.fit_person``: masks, a metric camera,
+   static or moving (``nsim.human.moving_camera``: told by the background's motion, its path by
+   SfM with the person masked out), bone lengths and per-frame joint angles; bad input is a
+   one-line ``InputError``);
 4. writes the human data format (docs/human_data.md) for the kept frames into ``out_dir``::
 
-       transforms.json    the static camera (the same pose in every frame), intrinsics
+       transforms.json    the camera of each frame (the same pose throughout for a static one), intrinsics
        images/frame_NNNNN.png, masks/frame_NNNNN.png   NNNNN: the frame's index in the input
        poses.json         the fitted poses (nsim.human.data)
        person.bvh         the person's own motion (longest unbroken stretch), nsim.human.bvh
@@ -137,7 +139,8 @@ def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray
     for row, (k, name) in enumerate(zip(fit.frames, names, strict=True)):
         write_image(out_dir / "images" / f"{name}.png", frames[int(k)])
         write_image(out_dir / "masks" / f"{name}.png", fit.masks[row].astype(np.uint8) * 255)
-        out_frames.append(Frame(file_path=f"images/{name}.png", cam_to_world=fit.cam_to_world, camera=fit.camera,
+        c2w = fit.cam_to_world if fit.cam_to_world.ndim == 2 else fit.cam_to_world[row]
+        out_frames.append(Frame(file_path=f"images/{name}.png", cam_to_world=c2w, camera=fit.camera,
                                 timestamp_s=float(k) / fit.fps))
     write_transforms(out_dir / "transforms.json", TransformsData(frames=out_frames))
     write_poses(out_dir / "poses.json", fit.human_poses(tuple(f"images/{n}.png" for n in names)))
@@ -145,6 +148,7 @@ def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray
     sk = fit.poses.body.skeleton
     report = {
         "frames_in": len(frames), "frames_kept": int(fit.frames.size), "fps": fit.fps,
+        "camera": "moving" if fit.cam_to_world.ndim == 3 else "static",
         "hfov_deg": float(fit.camera.fov_deg[0]), "camera_height_m": fit.camera_height_m, "scale": fit.scale,
         "height_m": fit.poses.body.height_m,
         "bone_lengths_m": {sk.joint_names[j]: float(np.linalg.norm(sk.offsets_m[j])) for j in range(1, sk.num_joints)},
@@ -170,7 +174,17 @@ def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None
     finally:
         if own:
             detector.close()
-    fit = fit_person(obs, fps, source.person, source=str(source.path))
+    moving = None
+    cfg = source.person
+    if cfg.camera != "static":
+        from nsim.human.landmarks import MASK_THRESHOLD
+        from nsim.human.moving_camera import background_motion_px, camera_moves, camera_path
+
+        masks = obs.person_masks >= MASK_THRESHOLD
+        if cfg.camera == "moving" or camera_moves(background_motion_px(frames, masks), obs.width):
+            log.info("%s: the camera moves; finding its path (SfM, the person masked out)", source.path)
+            moving = camera_path(frames, masks, cfg.hfov_deg)
+    fit = fit_person(obs, fps, cfg, source=str(source.path), camera_path=moving)
     for d in fit.dropped:
         log.warning("%s: dropped %s", source.path, d.describe(fit.fps))
     return write_person_data(Path(out_dir), frames, index, fit)

@@ -1,0 +1,134 @@
+"""A person from a plain video: the test room's actor capture given as ``video.mp4`` only (ground-truth
+poses and masks withheld from the fit, used only to score it).
+
+    PYTHONPATH=. /tmp/s6/mpvenv/bin/python bench/real_people.py [--quick] [--steps N] [--threads 1]
+
+Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
+
+1. ``nsim capture synth --actor`` (the camera is handheld: it follows the person through robot-lab);
+2. ``nsim.train.human_data_video.prepare_person_data`` on its ``video.mp4`` (what
+   ``train-human --video`` runs: MediaPipe's landmarks and masks, the camera told static or moving
+   and placed, the 24-joint fit), with ``--person-height`` set to the actor's height;
+3. scores against the withheld truth: mask IoU of the person masks (mean over kept frames), MPJPE of
+   the fitted joints after a per-frame Procrustes alignment (``nsim.human.fit.mpjpe_m``, cm);
+4. trains the human NeRF (``nsim.stages.train_human``, folder input) twice on the same frames and
+   split, once with the fitted poses and cameras and once with the true ones (the capture's own
+   folder without its background images, so both composite over the frames), and reports each
+   model's held-out (novel-pose) PSNR in the person's box and its render's mask IoU
+   (``eval.json``, ``nsim.train.human``).
+
+``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
+60 frames, the ``default`` preset. Prints a table; the last line is a JSON object with keys
+``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render`` (and more).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from nsim.config import load_config  # noqa: E402
+from nsim.context import RunContext  # noqa: E402
+from nsim.stages import capture, train_human  # noqa: E402
+from nsim.workspace.store import Store  # noqa: E402
+
+
+def score_fit(person_dir: Path, capture_dir: Path) -> dict:
+    """Mask IoU and PA-MPJPE of a person folder written from the capture's video against the capture's truth."""
+    from nsim.human.data import HumanData
+    from nsim.human.fit import mpjpe_m
+
+    fitted, truth = HumanData.load(person_dir), HumanData.load(capture_dir)
+    # frames are named after their index in the video, which is the capture's frame order
+    index = [int(Path(p).stem.split("_")[-1]) for p in fitted.image_paths]
+    pred_j = fitted.joint_transforms()[..., :3, 3]
+    true_j = truth.joint_transforms()[index][..., :3, 3]
+    iou = []
+    for row, k in enumerate(index):
+        p, g = fitted.mask(row), truth.mask(k)
+        iou.append(float((p & g).sum() / max((p | g).sum(), 1)))
+    return {"frames_scored": len(index), "mask_iou": float(np.mean(iou)),
+            "mpjpe_cm": float(100 * mpjpe_m(pred_j, true_j).mean()),
+            "mpjpe_cm_no_alignment_root_relative": float(100 * mpjpe_m(pred_j - pred_j[:, :1], true_j - true_j[:, :1],
+                                                                      procrustes=False).mean())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--workspace", type=Path, default=None)
+    ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default 2, 1 with --quick)")
+    args = ap.parse_args()
+    from nsim.human.person_video import PersonVideoConfig
+    from nsim.train.human_data_video import PersonSource, prepare_person_data
+
+    q = args.quick
+    threads = args.threads or (1 if q else 2)
+    cap_over = ["actor=true", "video=true"] + (["width=320", "height=240", "n_frames=30"] if q
+                                               else ["width=480", "height=360", "n_frames=60"])
+    steps = args.steps or (150 if q else None)
+    th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        store = Store(args.workspace or tmp / "ws")
+        ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
+        t0 = time.perf_counter()
+        cap_cfg = load_config(capture.Config, stage="capture", preset="default", overrides=cap_over)
+        cap = store.get(capture.run(capture.Inputs(), cap_cfg, ctx).capture)
+        cap_s = time.perf_counter() - t0
+        height = float(json.loads((cap.path / "poses.json").read_text())["height_m"])
+        t0 = time.perf_counter()
+        person_dir = tmp / "person"
+        source = PersonSource(cap.path / "video.mp4", person=PersonVideoConfig(body_height_m=height))
+        report = prepare_person_data(source, person_dir)
+        fit_s = time.perf_counter() - t0
+        scores = score_fit(person_dir, cap.path)
+        truth_dir = tmp / "truth"  # the capture's own folder, without background images (as the fitted one)
+        shutil.copytree(cap.path, truth_dir, ignore=shutil.ignore_patterns("background", "depth", "video.mp4"))
+        transforms = json.loads((truth_dir / "transforms.json").read_text())
+        for frame in transforms["frames"]:
+            frame.pop("background_path", None)
+        (truth_dir / "transforms.json").write_text(json.dumps(transforms))
+        print(f"person fit: {json.dumps(scores)}", flush=True)
+        cfg = load_config(train_human.Config, stage="train_human", preset="tiny" if q else "default",
+                          overrides=th_over)
+        ctx = dataclasses.replace(ctx, force=True)
+        evals, walls = {}, {}
+        for name, folder in (("fitted", person_dir), ("truth", truth_dir)):
+            t0 = time.perf_counter()
+            out = train_human.run(train_human.Inputs(folder=folder), cfg, ctx)
+            walls[name] = time.perf_counter() - t0
+            evals[name] = json.loads(store.get(out.human).file("eval.json").read_text())["mean"]
+    print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s:.0f} s, "
+          f"{report['frames_kept']} of {report['frames_in']} frames kept, height {report['height_m']:.2f} m, "
+          f"camera height {report['camera_height_m']:.2f} m")
+    print(f"mask IoU {scores['mask_iou']:.3f}; MPJPE after Procrustes {scores['mpjpe_cm']:.2f} cm "
+          f"(root-relative, no alignment {scores['mpjpe_cm_no_alignment_root_relative']:.2f} cm)")
+    print(f"{'poses':>8} {'PSNR box':>9} {'render IoU':>11} {'wall s':>7}")
+    for name in ("fitted", "truth"):
+        m = evals[name]
+        print(f"{name:>8} {m.get('psnr_box', float('nan')):9.2f} {m['mask_iou']:11.3f} {walls[name]:7.0f}")
+    print(json.dumps({"quick": q, "steps": cfg.optim.steps, "threads": threads, "camera": report["camera"],
+                      "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
+                      "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
+                      "psnr_box": round(evals["fitted"].get("psnr_box", float("nan")), 3),
+                      "psnr_box_gt_poses": round(evals["truth"].get("psnr_box", float("nan")), 3),
+                      "iou_render": round(evals["fitted"]["mask_iou"], 4),
+                      "iou_render_gt_poses": round(evals["truth"]["mask_iou"], 4),
+                      "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s, 1),
+                                       **{f"train_{k}": round(v, 1) for k, v in walls.items()}}}))
+
+
+if __name__ == "__main__":
+    main()

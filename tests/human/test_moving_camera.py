@@ -1,0 +1,157 @@
+"""A person filmed by a moving camera: the camera's motion is told from the background, the person is
+placed in SfM's camera path in metres (scale from SfM's floor, or from the root's smoothness without
+one), and fitted end to end (no MediaPipe, no SfM run: SfM's answer is the true path in another
+frame and scale)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nsim.geometry.transforms import look_at
+from nsim.human.fit import mpjpe_m, reference_body
+from nsim.human.gait import walk_cycle
+from nsim.human.landmarks import LANDMARK_NAMES, Observations
+from nsim.human.monocular import static_camera
+from nsim.human.motion import LocomotionLoop
+from nsim.human.moving_camera import (
+    CameraPath,
+    background_motion_px,
+    camera_moves,
+    metric_scale,
+    place_landmarks_moving,
+)
+from nsim.human.person_video import PersonVideoConfig, fit_person
+from nsim.human.skeleton import forward_kinematics
+
+FPS = 15.0
+HIPS = [LANDMARK_NAMES.index("left_hip"), LANDMARK_NAMES.index("right_hip")]
+SFM_SCALE = 0.37  # SfM units per metre in the made-up reconstruction
+
+
+def _rotation(rng) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _followed(seconds: float = 2.4, seed: int = 0):
+    """The reference body walking, filmed by a camera 1.5 m up that follows it on a curve; what a detector
+    reports, SfM's path (the true one under a similarity) and its floor points; the true joints and cameras."""
+    rng = np.random.default_rng(seed)
+    loop = LocomotionLoop.from_clip(walk_cycle(1.3, fps=FPS))
+    n = int(round(seconds * FPS))
+    time = np.arange(n) / FPS
+    root, quats = loop.sample(time)
+    root = root + (-1.5, 0.0, 0.0)
+    body = reference_body(1.75)
+    T = forward_kinematics(body.skeleton, quats, root)
+    lm_world = body.landmarks(T)
+    cam = static_camera(480, 360, 70.0)
+    c2w = np.stack([look_at((root[f, 0] - 1.0 + 0.6 * np.sin(1.3 * time[f]), -3.5 + 0.4 * time[f] ** 2, 1.5),
+                            (root[f, 0], root[f, 1], 0.9)) for f in range(n)])
+    w2c = np.linalg.inv(c2w)
+    lm = np.einsum("fij,flj->fli", w2c[:, :3, :3], lm_world) + w2c[:, None, :3, 3]
+    uv, _ = cam.project(lm)
+    hips = lm[:, HIPS].mean(axis=1, keepdims=True)
+    body_m = lm - hips + rng.normal(0.0, 0.01, lm.shape)
+    uv = uv + rng.normal(0.0, 1.0, uv.shape)
+    masks = np.zeros((n, 360, 480), np.float32)
+    obs = Observations(np.ones(n, bool), uv, body_m, np.ones((n, 33)), masks, np.zeros(n, np.int64), 480, 360)
+    # SfM's world: the true one turned, shifted and scaled
+    R, t = _rotation(rng), rng.normal(size=3)
+    S = np.eye(4)
+    S[:3, :3], S[:3, 3] = SFM_SCALE * R, t
+    sfm = np.einsum("ij,fjk->fik", S, c2w)
+    sfm[:, :3, :3] /= SFM_SCALE
+    floor = np.concatenate([rng.uniform(-4, 4, (400, 2)), np.zeros((400, 1))], axis=1)
+    walls = np.concatenate([rng.uniform(-4, 4, (200, 1)), np.full((200, 1), 4.0), rng.uniform(0, 2.5, (200, 1))], 1)
+    pts = np.concatenate([floor, walls]) @ S[:3, :3].T + S[:3, 3]
+    return obs, T[..., :3, 3], c2w, CameraPath(sfm, cam, pts)
+
+
+def test_background_motion_tells_a_moving_camera_from_a_static_one():
+    rng = np.random.default_rng(1)
+    room = (rng.uniform(0, 255, (60, 80)).repeat(8, 0).repeat(8, 1)).astype(np.uint8)  # blocky texture
+    room = np.stack([room] * 3, axis=-1)
+    masks = np.zeros((4, 360, 480), bool)
+    masks[:, 100:300, 200:260] = True  # the person: left out
+    static = [np.clip(room[:360, :480].astype(int) + rng.integers(-2, 3, (360, 480, 3)), 0, 255).astype(np.uint8)
+              for _ in range(4)]
+    moving = [room[3 * i:3 * i + 360, 5 * i:5 * i + 480].copy() for i in range(4)]  # 5.8 px a frame
+    for frames in (static, moving):  # a "person" that moves on its own must not count
+        for i, f in enumerate(frames):
+            f[100:300, 200:260] = 40 * i
+    m_static, m_moving = background_motion_px(static, masks), background_motion_px(moving, masks)
+    assert np.nanmax(m_static) < 0.5 and np.allclose(m_moving, np.hypot(3, 5), atol=0.3)
+    assert not camera_moves(m_static, 480) and camera_moves(m_moving, 480)
+    assert not camera_moves(np.full(3, np.nan), 480)
+    noise = [rng.integers(60, 200, (360, 480, 3), dtype=np.uint8) for _ in range(3)]  # nothing shared: no evidence
+    assert np.isnan(background_motion_px(noise, masks[:3])).all()
+
+
+def test_metric_scale_is_where_the_root_walks_straightest():
+    rng = np.random.default_rng(2)
+    n = 40
+    time = np.arange(n) / 10.0
+    root = np.stack([1.2 * time, 0.05 * np.sin(8 * time), 0.9 + 0.02 * np.sin(16 * time)], axis=1)
+    centres = np.stack([1.2 * time - 1.0 + 0.5 * np.sin(2 * time), -3.0 + 0.3 * time ** 2, 1.5 + 0 * time], axis=1)
+    rots = np.stack([_rotation(rng) for _ in range(n)])  # camera-to-world rotations
+    root_cam = np.einsum("fji,fj->fi", rots, root - centres)
+    c2w = np.tile(np.eye(4), (n, 1, 1))
+    c2w[:, :3, :3], c2w[:, :3, 3] = rots, centres / 2.5  # SfM units: 2.5 m each
+    assert metric_scale(root_cam, c2w) == pytest.approx(2.5, rel=0.05)
+    assert metric_scale(root_cam, c2w, times=time) == pytest.approx(2.5, rel=0.05)
+    c2w[:, :3, 3] = np.linspace(0, 1, n)[:, None] * (1.0, 0.0, 0.0)  # constant velocity: cannot tell
+    assert np.isnan(metric_scale(root_cam, c2w))
+
+
+@pytest.mark.parametrize("with_floor", [True, False])
+def test_person_placed_in_metres_in_the_moving_cameras_path(with_floor):
+    obs, gt, c2w, path = _followed()
+    points = path.points_xyz if with_floor else None
+    placed = place_landmarks_moving(obs.body_m, obs.image_uv_px, obs.visibility, path.camera, path.cam_to_world,
+                                    points)
+    # metres per SfM unit, the cameras' height and the whole path's shape (up to a turn about z and a shift)
+    assert placed.scale == pytest.approx(1 / SFM_SCALE, rel=0.08)
+    assert placed.camera_height_m == pytest.approx(1.5, abs=0.12)
+    got, true = placed.cam_to_world[:, :3, 3], c2w[:, :3, 3]
+    d_got, d_true = got - got.mean(0), true - true.mean(0)
+    assert np.linalg.norm(d_got, axis=1) == pytest.approx(np.linalg.norm(d_true, axis=1), abs=0.1)
+    # the cameras' heights and the landmarks' heights are those of the true world
+    assert np.abs(got[:, 2] - true[:, 2]).max() < 0.12
+    up_true = np.einsum("fi,fi->f", c2w[:, :3, 1], np.broadcast_to((0, 0, 1.0), (len(c2w), 3)))
+    np.testing.assert_allclose(placed.cam_to_world[:, 2, 1], up_true, atol=0.05)
+    # a known camera height rescales everything to it
+    fixed = place_landmarks_moving(obs.body_m, obs.image_uv_px, obs.visibility, path.camera, path.cam_to_world,
+                                   points, camera_height_m=1.8)
+    assert fixed.camera_height_m == pytest.approx(1.8) and fixed.scale == pytest.approx(placed.scale * 1.8
+                                                                                        / placed.camera_height_m)
+
+
+def test_fit_person_with_a_moving_camera():
+    obs, gt, c2w, path = _followed()
+    static = fit_person(obs, FPS, PersonVideoConfig(hfov_deg=70.0))  # a static camera's assumption: wrong here
+    fit = fit_person(obs, FPS, PersonVideoConfig(hfov_deg=70.0, camera="moving"), camera_path=path)
+    assert fit.cam_to_world.shape == (obs.num_frames, 4, 4)
+    pa = mpjpe_m(fit.poses.joint_positions_m, gt).mean()
+    assert pa <= 0.06, f"PA-MPJPE {pa:.4f} m"
+    assert fit.poses.body.height_m == pytest.approx(1.75, abs=0.05)
+    # the root's path in the world: true up to a turn about z and a shift along the floor
+    def shape(p):
+        return np.linalg.norm(p[:, :2] - p[:, :2].mean(0), axis=1)
+
+    root_true, root_fit = gt[:, 0], fit.poses.joint_positions_m[:, 0]
+    err = np.abs(shape(root_fit) - shape(root_true)).max()
+    err_static = np.abs(shape(static.poses.joint_positions_m[:, 0]) - shape(root_true)).max()
+    assert err < 0.1 and err_static > 3 * err, (err, err_static)
+    np.testing.assert_allclose(root_fit[:, 2], root_true[:, 2], atol=0.06)
+    # the camera of each frame in the human data format
+    poses = fit.human_poses()
+    assert poses.root_to_world.shape[0] == obs.num_frames
+
+
+def test_camera_mode_is_checked():
+    assert PersonVideoConfig(camera="static").camera == "static"
+    with pytest.raises(ValueError, match="camera"):
+        PersonVideoConfig(camera="handheld")
