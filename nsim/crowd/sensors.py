@@ -15,7 +15,7 @@ scales them (``nsim.rendering.render_plan.adapt_rig``).
 
 :class:`SceneSensors` loads the scene model and its occupancy grid once and renders one sensor at a
 body-to-world pose with ``nsim.rendering.renderer.render_camera`` / ``render_lidar`` and the render
-stage's settings (``nsim.stages.render.Config``: method, marching step, chunk, depth estimate,
+stage's settings (``nsim.rendering.render_plan.RenderConfig``, the render stage's ``Config``: method, marching step, chunk, depth estimate,
 minimum accumulation). The frames are the scene **without people** (compositing the run's people
 is ``nsim render``'s job) and without sensor noise:
 
@@ -173,9 +173,9 @@ class SceneSensors:
 
 def scene_sensors(sc, store, device: str = "cpu") -> SceneSensors | None:
     """The renderer of scenario ``sc``'s ``robot.sensors`` in its scene checkpoint (``store``: the workspace
-    holding it) with ``nsim render``'s default settings (``nsim.stages.render.Config``, where they live),
+    holding it) with ``nsim render``'s default settings (``nsim.rendering.render_plan.RenderConfig``),
     or None when the scenario has none."""
-    from nsim.stages.render import Config as RenderConfig
+    from nsim.rendering.render_plan import RenderConfig
 
     spec = sc.robot.sensors
     if spec is None:

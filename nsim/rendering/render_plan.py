@@ -27,10 +27,65 @@ from typing import Any
 
 import numpy as np
 
+from nsim.config import param
 from nsim.context import RunContext
 from nsim.errors import InputError
+from nsim.rendering.renderer import MarchConfig
 
 log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderConfig:
+    """``nsim render``'s settings (``nsim.stages.render.Config`` is this class; presets in ``configs/render/``)."""
+
+    tick_stride: int = param(1, ge=1, help="render every k-th tick (trajectory) or frame (poses; recording: of "
+                                           "each stream's kept frames)")
+    start: int = param(0, ge=0, help="first tick / frame index")
+    max_frames: int | None = param(None, ge=1, help="render at most this many ticks / frames (recording: per stream)")
+    frames: str = param("all", choices=("all", "heldout"), help="poses mode: all frames or the scene's held-out ones")
+    sensors: tuple[str, ...] = param((), help="rig sensors to render, or (recording mode) the recording's streams, "
+                                              "each <kind>/<name> or a bare <name> for every kind (empty: all)")
+    camera_clock_kinds: tuple[str, ...] = param(("camera",), help="recording mode: the stream kinds stamped on the "
+                                                "cameras' clock (shifted by the registration's clock_offset_s); the "
+                                                "others are stamped on the odometry's")
+    people_time_offset_s: float = param(0.0, ge=-1e6, le=1e6,
+                                        help="recording mode with --trajectory: a frame at odometry time o sees the "
+                                             "run's people at simulation time time_s[0] + (o - the recording's first "
+                                             "odometry stamp) + people_time_offset_s; 0 puts the run's first tick at "
+                                             "the first odometry stamp, as nsim capture robot-log records a run")
+    image_scale: float = param(1.0, gt=0.0, le=4.0, help="scale every camera's resolution (intrinsics follow; "
+                                                       "recording mode renders the recorded sizes: 1 only)")
+    lidar_azimuth_scale: float = param(1.0, gt=0.0, le=1.0, help="scale LiDAR azimuth samples per sweep (recording "
+                                                                 "mode renders the recorded points: 1 only)")
+    shard_frames: int = param(8, ge=1, help="frames per shard (the unit of resume and of distribution)")
+    method: str = param("proposal", choices=("proposal", "march", "baked"),
+                        help="march: constant steps with the occupancy grid and early termination; proposal: "
+                             "the proposal sampler the model trained with (fewer samples, faster on CPU); baked: "
+                             "the scene baked into a sparse voxel grid (nsim bake; --baked ID, else baked here)")
+    march: MarchConfig = MarchConfig(step_m=0.01)
+    chunk_rays: int = param(16384, ge=256)
+    depth_estimate: str = param("median", choices=("median", "expected"),
+                                help="ray depth: the median of the weights or the normalised expected depth")
+    min_accumulation: float = param(0.5, ge=0.0, le=1.0, help="opacity below which a ray has no return")
+    fill: str = param("image_mean", choices=("image_mean", "none"),
+                      help="camera pixels with no return (accumulation below min_accumulation, depth inf: no "
+                           "surface, e.g. a ceiling the capture never looked at): image_mean composites the ray's "
+                           "remaining light over the training images' mean colour (kept with the scene checkpoint) "
+                           "instead of the model's background; none: as the model renders them")
+    background: str = param("scene", choices=("scene", "last_sample"),
+                            help="what a ray's remaining light is composited over: scene, the model's own "
+                                 "background (sampler.background, as it was trained); last_sample, the scene "
+                                 "field's colour at the ray's last sample (nerfacto's default)")
+    rgb_exr: bool = param(False, help="also write linear RGB EXR")
+    noise: bool = param(True, help="apply the rig's depth / LiDAR noise models (seeded; recording mode has no rig "
+                                   "and renders noise-free)")
+    culling: bool = param(True, help="query people's NeRFs only on rays that can see their posed box (2D bound for "
+                                      "cameras, ray-box test); false: on every ray (the same images, slower)")
+    preview_every: int = param(10, ge=1, help="contact sheet: every k-th rendered frame")
+    preview_max_rows: int = param(8, ge=1)
+    video: bool = param(True, help="write preview/preview.mp4")
+    video_fps: float = param(10.0, gt=0.0, le=60.0)
 
 
 def adapt_rig(rig, cfg):
