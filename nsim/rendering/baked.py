@@ -16,6 +16,16 @@ Baking (``bake``: a trained ``SceneModel`` and its ``OccupancyGrid`` in, arrays 
     one, so no training is needed. Deterministic: the same model, grid and config give the same
     arrays (on one device).
 
+Visibility culling (``cull_weight``; ``brick_visibility``, ``cull``)
+    SNeRG's rule (Hedman et al. 2021, section 4.2: voxels whose maximum volume-rendering weight over
+    the training rays is small are culled): every ``cull_stride``-th pixel of each training image casts
+    a ray through the baked grid itself (no field evaluation), the weights of a ray's consecutive samples
+    in one brick are summed, and a brick whose largest such sum over all rays stays below
+    ``cull_weight`` goes: bricks outside every view and those behind opaque surfaces. A brick is
+    interpolated from its own lattice alone, so the kept ones render exactly as before; rays from novel
+    poses (Spot's fisheyes looking at the ceiling or behind walls) then cross the culled space as free
+    space, skipped by the coarse march.
+
 Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     Two-level marching with a constant step. Coarse steps of ``step_c`` (the smallest side of
     an occupancy cell) test whole segments: the segment ``[t_j, t_j + step_c)`` moves by at most
@@ -92,6 +102,14 @@ class BakeConfig:
     chunk_points: int = param(1 << 16, ge=256, help="field evaluations per batch while baking")
     field_color_samples: int = param(2, ge=0, le=64, help="per ray, the samples of highest weight whose colour "
                                                           "comes from the scene field itself (0: baked features only)")
+    cull_weight: float | None = param(None, gt=0.0, lt=1.0, help="visibility culling: drop bricks whose volume-"
+                                                              "rendering weight along every training ray stays below "
+                                                              "this (null: keep every brick)")
+    cull_stride: int = param(4, ge=1, le=64, help="visibility culling: every cull_stride-th pixel of each training "
+                                                  "image (in both directions) casts a ray")
+    cull_voxel_m: float | None = param(None, gt=0.0, le=1.0, help="visibility culling: the voxels of the first bake, "
+                                                                "the one culled; voxel_m bakes only the kept cells "
+                                                                "(null: voxel_m, one bake)")
 
 
 # ---------------------------------------------------------------------------------- the colour head
@@ -419,6 +437,64 @@ def assemble(plan: BakePlan, density: Tensor, features: Tensor, decoder: ColorDe
                       meta=stats, field_color_samples=cfg.field_color_samples)
 
 
+def brick_visibility(baked: BakedScene, rays: Rays, chunk: int = 65536) -> Tensor:
+    """Per brick ``(N,)`` float32, the largest volume-rendering weight it takes along any of ``rays``: a ray's
+    weights summed over each run of its samples in one brick (so that the figure does not depend on the step),
+    maximised over the rays. 0 for a brick no ray reaches (outside every view, or behind opaque surfaces)."""
+    seen = torch.zeros(baked.n_bricks, dtype=torch.float32, device=baked.device)
+    for a in range(0, len(rays), chunk):
+        ray, t0, t1, sigma, brick, _ = _march(baked, rays[a : a + chunk])
+        if not ray.numel():
+            continue
+        # packed volume rendering: w = T * (1 - exp(-sigma dt)), T the ray's transmittance before the sample
+        tau = (sigma * (t1 - t0)).double()
+        new_ray = torch.ones_like(ray, dtype=torch.bool)
+        new_ray[1:] = ray[1:] != ray[:-1]
+        incl = torch.cumsum(tau, 0)
+        excl = incl - tau
+        first = torch.cummax(torch.where(new_ray, torch.arange(len(ray), device=ray.device), 0), 0)[0]
+        before = excl - excl[first]
+        w = (torch.exp(-before) * -torch.expm1(-tau)).float()
+        run = new_ray.clone()
+        run[1:] |= brick[1:] != brick[:-1]
+        run_id = torch.cumsum(run.to(torch.int64), 0) - 1
+        run_w = torch.zeros(int(run_id[-1]) + 1, device=w.device).index_add_(0, run_id, w)
+        seen.scatter_reduce_(0, brick[run], run_w, reduce="amax")
+    return seen
+
+
+def cull(baked: BakedScene, visibility: Tensor, min_weight: float) -> BakedScene:
+    """``baked`` without the bricks whose ``visibility (N,)`` (:func:`brick_visibility`) is below ``min_weight``,
+    the rest renumbered in their order (a brick is interpolated from its own lattice, so the kept ones render as
+    before); ``meta`` counts the culled bricks."""
+    keep = visibility >= min_weight
+    old = baked.brick_index.view(-1)
+    renum = torch.cumsum(keep.to(torch.int32), 0, dtype=torch.int32) - 1
+    occupied = old >= 0
+    new = torch.full_like(old, -1)
+    new[occupied] = torch.where(keep[old[occupied].long()], renum[old[occupied].long()], -1)
+    meta = {**baked.meta, "culled_bricks": int((~keep).sum()), "cull_weight": float(min_weight)}
+    return dataclasses.replace(baked, brick_index=new.view(baked.brick_index.shape),
+                               density=baked.density[keep].contiguous(), features=baked.features[keep].contiguous(),
+                               meta=meta)
+
+
+def training_rays(model, frames, stride: int) -> Rays:
+    """The rays of every ``stride``-th pixel (both directions) of ``frames`` (``(camera, cam_to_world)`` pairs, the
+    images the scene was trained on), clipped as the scene model clips its own rays."""
+    from nsim.rendering.renderer import camera_rays
+
+    parts = []
+    for camera, c2w in frames:
+        rays, _, valid = camera_rays(model, camera, c2w)
+        pick = torch.zeros(camera.height, camera.width, dtype=torch.bool, device=valid.device)
+        pick[::stride, ::stride] = True
+        parts.append(rays[torch.nonzero(pick.view(-1) & valid.bool(), as_tuple=True)[0]])
+    if not parts:
+        raise InputError("bake: visibility culling needs the training cameras, and there are none")
+    return Rays(*(torch.cat([getattr(r, f) for r in parts]) for f in ("origins", "dirs", "near", "far")))
+
+
 def decoder_of(model) -> ColorDecoder:
     """The colour head of a ``SceneModel`` with its mean appearance embedding (over the training images)."""
     codes = model.field.appearance_codes(None, 1, "mean", model.train_mask)
@@ -427,26 +503,57 @@ def decoder_of(model) -> ColorDecoder:
 
 def finish_bake(model, grid, plan: BakePlan, density: Tensor, features: Tensor, cfg: BakeConfig) -> BakedScene:
     """:func:`assemble` for a ``SceneModel`` baked over its ``OccupancyGrid``: pruned at ``cfg.prune_density``
-    (default: the grid's own threshold), its colour head and background."""
+    (default: the grid's own threshold), its colour head and background (no culling: :func:`bake_passes`)."""
     prune = grid.density_threshold if cfg.prune_density is None else cfg.prune_density
     return assemble(plan, density, features, decoder_of(model).to(density.device), cfg, model.sampler_cfg.background,
                     model.sampler_cfg.background_rgb, prune)
 
 
+def bake_passes(model, grid, cfg: BakeConfig, frames, evaluate) -> BakedScene:
+    """The whole bake, its lattices evaluated by ``evaluate(plan, cfg, name) -> (density (U,), features (U, G))``
+    (``name``: ``"cull"`` or ``"bake"``, so that a caller can keep the two apart).
+
+    Without ``cull_weight``: one bake at ``voxel_m``. With it: a first bake at ``cull_voxel_m`` (default
+    ``voxel_m``), culled by the training cameras ``frames`` (``(camera, cam_to_world)`` pairs:
+    :func:`training_rays`, :func:`brick_visibility`, :func:`cull`); when ``voxel_m`` cuts the cells finer, a
+    second bake at ``voxel_m`` over the kept cells alone."""
+    if cfg.cull_weight is None:
+        plan = plan_bake(grid, cfg)
+        return finish_bake(model, grid, plan, *evaluate(plan, cfg, "bake"), cfg)
+    first_cfg = cfg if cfg.cull_voxel_m is None else dataclasses.replace(cfg, voxel_m=cfg.cull_voxel_m)
+    plan = plan_bake(grid, first_cfg)
+    first = finish_bake(model, grid, plan, *evaluate(plan, first_cfg, "cull"), first_cfg)
+    culled = cull(first, brick_visibility(first, training_rays(model, frames or [], cfg.cull_stride)), cfg.cull_weight)
+    if plan.bricks_per_side == bricks_per_side(grid.cell_m, cfg.voxel_m):
+        return culled
+    kept = dataclasses.replace(grid, occupied=culled.brick_index >= 0)
+    plan = plan_bake(kept, cfg)
+    fine = finish_bake(model, kept, plan, *evaluate(plan, cfg, "bake"), cfg)
+    meta = {**fine.meta, "occupied_cells": culled.meta["occupied_cells"],
+            "pruned_bricks": culled.meta["pruned_bricks"] + fine.meta["pruned_bricks"],
+            "culled_bricks": culled.meta["culled_bricks"], "cull_weight": cfg.cull_weight,
+            "cull_voxel_m": float(first_cfg.voxel_m),
+            "lattice_points_evaluated": culled.meta["lattice_points_evaluated"] + plan.n_points}
+    return dataclasses.replace(fine, meta=meta)
+
+
 @torch.no_grad()
-def bake(model, grid, cfg: BakeConfig = BakeConfig()) -> BakedScene:
-    """Bake a ``SceneModel`` over its ``OccupancyGrid`` (same device) into a :class:`BakedScene`."""
+def bake(model, grid, cfg: BakeConfig = BakeConfig(), frames=None) -> BakedScene:
+    """Bake a ``SceneModel`` over its ``OccupancyGrid`` (same device) into a :class:`BakedScene`; ``frames``: the
+    training cameras, ``(camera, cam_to_world)`` pairs, for ``cfg.cull_weight`` (:func:`bake_passes`)."""
     model.eval()
-    plan = plan_bake(grid, cfg)
-    sig, feats = [], []
-    for a in range(0, plan.n_points, cfg.chunk_points):
-        s, f = evaluate_lattice(model.field, plan, cfg, a, min(plan.n_points, a + cfg.chunk_points))
-        sig.append(s)
-        feats.append(f)
-    device = grid.aabb.device
-    density = torch.cat(sig) if sig else torch.zeros(0, device=device)
-    features = torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=device)
-    return finish_bake(model, grid, plan, density, features, cfg)
+
+    def evaluate(plan: BakePlan, c: BakeConfig, _name: str) -> tuple[Tensor, Tensor]:
+        sig, feats = [], []
+        for a in range(0, plan.n_points, c.chunk_points):
+            s, f = evaluate_lattice(model.field, plan, c, a, min(plan.n_points, a + c.chunk_points))
+            sig.append(s)
+            feats.append(f)
+        device = grid.aabb.device
+        density = torch.cat(sig) if sig else torch.zeros(0, device=device)
+        return density, torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=device)
+
+    return bake_passes(model, grid, cfg, frames, evaluate)
 
 
 # ---------------------------------------------------------------------------------- rendering
@@ -656,5 +763,6 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
     return out
 
 
-__all__ = ["BakeConfig", "BakePlan", "BakedScene", "ColorDecoder", "assemble", "bake", "decoder_of", "density_at",
-           "evaluate_lattice", "features_at", "finish_bake", "locate", "plan_bake", "render_baked", "render_chunk"]
+__all__ = ["BakeConfig", "BakePlan", "BakedScene", "ColorDecoder", "assemble", "bake", "bake_passes",
+           "brick_visibility", "cull", "decoder_of", "density_at", "evaluate_lattice", "features_at", "finish_bake",
+           "locate", "plan_bake", "render_baked", "render_chunk", "training_rays"]

@@ -2,8 +2,9 @@
 
 Input: a ``scene-checkpoint`` (``nsim train-scene``): its field and the occupancy grid baked at train
 time. The core (``nsim.rendering.baked``) puts a brick of lattice points into every occupied cell,
-stores the field's density and geometry features there, drops the bricks that hold no density and
-keeps the colour head with the mean appearance embedding; ``nsim render --set method=baked`` marches
+stores the field's density and geometry features there, drops the bricks that hold no density (and, with
+``cull_weight``, those no training camera sees: SNeRG's visibility culling, the training rays marched
+through the baked grid itself) and keeps the colour head with the mean appearance embedding; ``nsim render --set method=baked`` marches
 it (``--baked ID``, or baked on demand).
 
 Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
@@ -14,7 +15,8 @@ Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
     features.npy               (N, (B + 1)^3, G) float16: the field's geometry features there
     color_layer<k>_{weight,bias}.npy   the colour head (appearance folded into the first bias)
 
-Resume: the lattice is evaluated in parts of ``PART_POINTS`` points, each written to
+Resume: the lattice (both lattices with ``cull_voxel_m``: the culled first bake's, then the fine one's
+over the kept cells) is evaluated in parts of ``PART_POINTS`` points, each written to
 ``<workspace>/tmp/bake.<key>.resume/`` as it is done; a killed bake started again with the same
 inputs, config and device evaluates only the missing parts and publishes the same artifact. The
 folder goes once the artifact is published. The device is part of the action key.
@@ -74,6 +76,32 @@ def resolve_scene(spec: str, ctx: RunContext) -> str:
     return art_id
 
 
+def training_frames(scene_id: str, ctx: RunContext) -> list:
+    """The cameras the scene was trained on, ``(camera, cam_to_world)`` pairs at the size it trained at: the
+    poses artifact its manifest names, the images ``scene.json`` lists as ``train_images``."""
+    import json
+
+    from nsim.io.transforms_json import read_transforms
+
+    store = ctx.store
+    art = store.get(scene_id)
+    doc = json.loads(art.file("scene.json").read_text())
+    doc = doc.get("extra", doc)
+    poses = art.manifest.get("inputs", {}).get("poses")
+    if poses is None or "train_images" not in doc:
+        raise InputError(f"bake {scene_id[:12]}: cull_weight needs the training cameras; the scene names no poses "
+                         "artifact or train_images (set cull_weight=null)")
+    frames = read_transforms(store.get(poses).file("transforms.json")).frames
+    size = doc.get("image_size_trained")
+    out = []
+    for i in doc["train_images"]:
+        cam = frames[int(i)].camera
+        if size and int(size[0]) != cam.width:
+            cam = cam.scaled(int(size[0]) / cam.width)
+        out.append((cam, np.asarray(frames[int(i)].cam_to_world, dtype=np.float32)))
+    return out
+
+
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     device = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra={"device": device})
@@ -88,7 +116,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     import torch
 
     from nsim.rendering import OccupancyGrid, load_model
-    from nsim.rendering.baked import evaluate_lattice, finish_bake, plan_bake
+    from nsim.rendering.baked import bake_passes, evaluate_lattice
 
     store = ctx.store
     inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
@@ -100,30 +128,35 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     t0 = time.perf_counter()
     model = load_model(art.path, ctx.device).eval()
     grid = OccupancyGrid.load(art.file("occupancy_grid.npy"), ctx.device)
-    plan = plan_bake(grid, cfg)
     work = resume_dir(ctx, key)
     work.mkdir(parents=True, exist_ok=True)
-    sig, feats, reused = [], [], 0
-    for a in range(0, plan.n_points, PART_POINTS):
-        b = min(plan.n_points, a + PART_POINTS)
-        part = (work / f"part_{a:012d}_density.npy", work / f"part_{a:012d}_features.npy")
-        if part[0].is_file() and part[1].is_file():
-            s, f = (torch.as_tensor(np.load(p, allow_pickle=False)).to(ctx.device) for p in part)
-            reused += 1
-        else:
-            pieces = [evaluate_lattice(model.field, plan, cfg, c, min(b, c + cfg.chunk_points))
-                      for c in range(a, b, cfg.chunk_points)]
-            s, f = torch.cat([p[0] for p in pieces]), torch.cat([p[1] for p in pieces])
-            for path, arr in ((part[1], f), (part[0], s)):  # density last: its presence marks a complete part
-                tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-                with open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
-                    np.save(fh, arr.cpu().numpy(), allow_pickle=False)
-                os.replace(tmp, path)
-        sig.append(s)
-        feats.append(f)
-    density = torch.cat(sig) if sig else torch.zeros(0, device=ctx.device)
-    features = torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=ctx.device)
-    baked = finish_bake(model, grid, plan, density, features, cfg)
+    reused = 0
+
+    def evaluate(plan, c, name):
+        nonlocal reused
+        sig, feats = [], []
+        for a in range(0, plan.n_points, PART_POINTS):
+            b = min(plan.n_points, a + PART_POINTS)
+            part = (work / f"{name}_{a:012d}_density.npy", work / f"{name}_{a:012d}_features.npy")
+            if part[0].is_file() and part[1].is_file():
+                s, f = (torch.as_tensor(np.load(p, allow_pickle=False)).to(ctx.device) for p in part)
+                reused += 1
+            else:
+                pieces = [evaluate_lattice(model.field, plan, c, d, min(b, d + c.chunk_points))
+                          for d in range(a, b, c.chunk_points)]
+                s, f = torch.cat([p[0] for p in pieces]), torch.cat([p[1] for p in pieces])
+                for path, arr in ((part[1], f), (part[0], s)):  # density last: its presence marks a complete part
+                    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+                    with open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
+                        np.save(fh, arr.cpu().numpy(), allow_pickle=False)
+                    os.replace(tmp, path)
+            sig.append(s)
+            feats.append(f)
+        density = torch.cat(sig) if sig else torch.zeros(0, device=ctx.device)
+        return density, torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=ctx.device)
+
+    frames = training_frames(inputs.scene, ctx) if cfg.cull_weight is not None else None
+    baked = bake_passes(model, grid, cfg, frames, evaluate)
     bake_s = time.perf_counter() - t0
     with store.publish(kind="baked-scene", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
                        seed=ctx.seed) as out:
@@ -131,7 +164,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         size = sum(p.stat().st_size for p in out.dir.iterdir() if p.is_file())
         out.summary.update({"bricks": doc["bricks"], "bricks_per_side": doc["bricks_per_side"],
                             "voxel_m": doc["voxel_m"], "occupied_cells": doc["occupied_cells"],
-                            "pruned_bricks": doc["pruned_bricks"], "size_mb": round(size / 1e6, 3)})
+                            "pruned_bricks": doc["pruned_bricks"], "culled_bricks": doc.get("culled_bricks", 0),
+                            "size_mb": round(size / 1e6, 3)})
         out.timing["bake_s"] = round(bake_s, 2)
         if reused:
             out.timing["parts_reused"] = reused

@@ -297,3 +297,45 @@ def test_people_composite_over_the_baked_scene(baked):
     torch.testing.assert_close(out.rgb[live], ref.rgb)
     assert torch.equal(out.rgb[~live], scene.rgb[~live])
     assert int((instance > 0).sum()) > 0
+
+
+def test_visibility_culling_drops_what_no_camera_sees(baked):
+    """A wall of 0.5 m cells (tau 25 across) seen head-on by a bundle of rays: the wall where the rays hit it
+    and a thin brick in front of it stay; a brick behind the wall, one outside the bundle and the wall's
+    unseen part go, and the kept bricks render the bundle as before."""
+    from nsim.rendering.baked import brick_visibility, cull
+
+    shape = (6, 4, 4)
+    b = 2
+    p = (b + 1) ** 3
+    cells = {(2, j, k): 50.0 for j in range(4) for k in range(4)}  # the wall
+    cells[(1, 1, 1)] = 0.5  # a thin haze in front of it, on the rays
+    cells[(4, 1, 1)] = 5.0  # behind the wall
+    cells[(1, 0, 0)] = 5.0  # beside the bundle
+    order = sorted(cells)
+    index = torch.full(shape, -1, dtype=torch.int32)
+    for n, c in enumerate(order):
+        index[c] = n
+    g = baked.features.shape[-1]
+    feats = torch.rand(len(order), p, g, generator=torch.Generator().manual_seed(1)).to(baked.features.dtype)
+    scene = dataclasses.replace(baked, aabb=torch.tensor([[0.0, 0.0, 0.0], [3.0, 2.0, 2.0]]), brick_index=index,
+                                density=torch.tensor([[cells[c]] * p for c in order]), features=feats, bricks_per_side=b,
+                                field_color_samples=0, field=None)
+    yz = torch.stack(torch.meshgrid(torch.linspace(0.55, 1.45, 7), torch.linspace(0.55, 1.45, 7), indexing="ij"),
+                     -1).reshape(-1, 2)
+    o = torch.cat([torch.full((len(yz), 1), 0.01), yz], -1)
+    rays = make_rays(o, torch.tensor([[1.0, 0.0, 0.0]]).expand(len(yz), 3), 0.0, 10.0, scene.aabb)
+    seen = brick_visibility(scene, rays, chunk=13)
+    pos = {c: n for n, c in enumerate(order)}
+    assert float(seen[pos[(1, 1, 1)]]) == pytest.approx(1 - math.exp(-0.25), rel=1e-3)
+    assert float(seen[pos[(2, 1, 1)]]) > 0.5
+    assert float(seen[pos[(4, 1, 1)]]) < 1e-9 and float(seen[pos[(1, 0, 0)]]) == 0.0
+    culled = cull(scene, seen, 0.005)
+    kept = {c for c in order if int(culled.brick_index[c]) >= 0}
+    assert kept == {(1, 1, 1), (2, 1, 1), (2, 1, 2), (2, 2, 1), (2, 2, 2)}
+    assert culled.n_bricks == 5 and culled.meta["culled_bricks"] == len(order) - 5
+    for c in kept:  # the kept bricks keep their own lattice values
+        assert torch.equal(culled.features[int(culled.brick_index[c])], scene.features[int(scene.brick_index[c])])
+    before, after = render_baked(scene, rays), render_baked(culled, rays)
+    torch.testing.assert_close(after.rgb, before.rgb, atol=1e-6, rtol=0)
+    torch.testing.assert_close(after.depth, before.depth, atol=1e-5, rtol=0)

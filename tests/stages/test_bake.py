@@ -156,6 +156,37 @@ def test_on_demand_bake_is_the_default_bake(world, monkeypatch):
         assert np.array_equal(read_image(here.file(name)), read_image(given.file(name)))
 
 
+def test_visibility_culling_from_the_training_cameras(world, capsys):
+    """cull_weight: the training cameras (the scene's poses artifact, its train_images) are marched through the
+    baked grid and the bricks none of them sees go; the held-out views still render what the NeRF renders, and a
+    forced rerun gives the same artifact."""
+    from nsim.io.images import read_image
+
+    ws = ["--workspace", str(world.root), "--device", "cpu"]
+    bake = [*ws, "bake", "scene/t", "--preset", "tiny", "--set", "cull_weight=0.005", "--set", "cull_stride=2"]
+    assert main([*bake, "--tag", "baked/culled"]) == 0
+    full, culled = (world.get(world.resolve(t)) for t in ("baked/t", "baked/culled"))
+    s = culled.manifest["summary"]
+    assert 0 < s["culled_bricks"] and s["bricks"] + s["culled_bricks"] == full.manifest["summary"]["bricks"]
+    assert json.loads(culled.file("baked.json").read_text())["culled_bricks"] == s["culled_bricks"]
+    capsys.readouterr()
+    assert main([*bake, "--force"]) == 0
+    assert capsys.readouterr().out.strip() == culled.id
+    nerf = render_poses(world, "proposal", "render/nerf-c")
+    baked = render_poses(world, "baked", "render/baked-culled", "--baked", "baked/culled")
+    scores = [psnr(read_image(baked.file(f"frames/rgb/{f['index']:06d}.png")),
+                   read_image(nerf.file(f"frames/rgb/{f['index']:06d}.png")))
+              for f in json.loads(baked.file("render.json").read_text())["frames"]]
+    print(f"culled {s['culled_bricks']} of {full.manifest['summary']['bricks']} bricks; baked vs NeRF PSNR {scores}")
+    assert np.mean(scores) > PSNR_BAR_DB, scores
+    # culled at 0.3 m voxels (1 a side), then the kept cells alone baked at the preset's 0.1 m
+    assert main([*bake, "--set", "cull_voxel_m=0.3", "--tag", "baked/two-pass"]) == 0
+    two = world.get(world.resolve("baked/two-pass"))
+    doc = json.loads(two.file("baked.json").read_text())
+    assert doc["bricks_per_side"] == 3 and doc["cull_voxel_m"] == pytest.approx(0.3) and doc["culled_bricks"] > 0
+    assert 0 < doc["bricks"] < full.manifest["summary"]["bricks"]
+
+
 @pytest.fixture(scope="module")
 def spot_run(world):
     assert main(["--workspace", str(world.root), "simulate", "--preset", "tiny", "--set", "max_duration_s=2.0",
