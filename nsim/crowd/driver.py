@@ -26,6 +26,7 @@ from nsim.crowd.social_force import (
     CrowdState,
     CrowdTrajectory,
     RobotTrack,
+    crowd_record,
     keep_out_of_walls,
     make_walls,
     rollout,
@@ -241,15 +242,8 @@ def closed_loop(
     pose0 = robot.poses_at(np.zeros(1))[0]
     pos, yaw, vel = pose0[:2, 3].copy(), float(yaw_of_poses(pose0[None])[0]), np.zeros(2)
     goal_index = _advance_goal(0, pos, robot.goals_m, robot.goals_loop)
-    t_count, n = n_steps + 1, state.n
-    out = {
-        "position_m": np.empty((t_count, n, 2)),
-        "velocity_mps": np.empty((t_count, n, 2)),
-        "heading_rad": np.empty((t_count, n)),
-        "behaviour_state": np.empty((t_count, n), np.int8),
-        "gait_phase": np.empty((t_count, n)),
-        "goal_index": np.empty((t_count, n), np.int64),
-    }
+    t_count = n_steps + 1
+    out = crowd_record(t_count, state.n)
     r_pos, r_vel, r_yaw = np.empty((t_count, 2)), np.zeros((t_count, 2)), np.empty(t_count)
     commands, executed = np.empty((n_steps, 3)), np.empty((n_steps, 3))
     sensor_every = sensors.every_ticks(dt_s) if sensors is not None else 0

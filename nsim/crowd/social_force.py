@@ -945,6 +945,19 @@ class CrowdTrajectory:
         return CrowdTrajectory(**kw)
 
 
+
+def crowd_record(t_count: int, n: int) -> dict[str, np.ndarray]:
+    """Empty per-tick arrays of a rollout's crowd, ``(T, N, ...)`` each, keyed by ``CrowdState`` field
+    (what a rollout records at every tick: ``arr[k] = getattr(state, name)``)."""
+    return {
+        "position_m": np.empty((t_count, n, 2)),
+        "velocity_mps": np.empty((t_count, n, 2)),
+        "heading_rad": np.empty((t_count, n)),
+        "behaviour_state": np.empty((t_count, n), np.int8),
+        "gait_phase": np.empty((t_count, n)),
+        "goal_index": np.empty((t_count, n), np.int64),
+    }
+
 def rollout(
     state: CrowdState,
     n_steps: int,
@@ -980,15 +993,8 @@ def rollout(
             fastest * dt_s,
         )
     rng = np.random.default_rng(seed)
-    t_count, n = n_steps + 1, state.n
-    out = {
-        "position_m": np.empty((t_count, n, 2)),
-        "velocity_mps": np.empty((t_count, n, 2)),
-        "heading_rad": np.empty((t_count, n)),
-        "behaviour_state": np.empty((t_count, n), np.int8),
-        "gait_phase": np.empty((t_count, n)),
-        "goal_index": np.empty((t_count, n), np.int64),
-    }
+    t_count = n_steps + 1
+    out = crowd_record(t_count, state.n)
     robot_vel = robot.velocity_mps(dt_s) if robot is not None else None
     for k in range(t_count):
         for name, arr in out.items():
