@@ -18,6 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from nsim.config import param
+from nsim.errors import ConfigError
 from nsim.fields.contraction import box_to_unit, world_to_unit
 from nsim.fields.encodings import spherical_harmonics
 from nsim.fields.hash_encoding import BACKENDS, HashEncoding
@@ -34,7 +35,9 @@ class SceneFieldConfig:
     hash_features_per_level: int = param(2, choices=(1, 2, 4, 8))
     hash_log2_table_size: int = param(19, ge=8, le=24)
     hash_base_resolution: int = param(16, ge=2, le=1024)
-    hash_max_resolution: int = param(2048, ge=2, le=65536)
+    hash_max_resolution: int = param(2048, ge=0, le=65536, help="the finest level's cells across the grid; 0: from "
+                                     "the data, one cell per training pixel at the capture's median depth "
+                                     "(nsim.train.scene.finest_hash_resolution)")
     hidden_dim: int = param(64, ge=4, le=1024)
     geo_feat_dim: int = param(15, ge=1, le=256)
     color_hidden_dim: int = param(64, ge=4, le=1024)
@@ -48,6 +51,10 @@ class SceneFieldConfig:
                                   "falls back to eager where compiling fails")
     density_bias: float = param(-1.0, ge=-20.0, le=20.0, help="sigma = exp(mlp + bias): sets the initial density "
                                 "(exp(-1) = 0.37/m; the grid sampler wants a clear start, e.g. -3: 0.05/m)")
+
+    def __post_init__(self) -> None:
+        if self.hash_max_resolution == 1:
+            raise ConfigError("field.hash_max_resolution: expected 0 (from the data) or >= 2, got 1")
 
 
 @dataclass(frozen=True)

@@ -66,6 +66,7 @@ from nsim.train.scene_data import (
     POINT_FILES,
     DataConfig,
     SceneData,
+    camera_to_point_median,
     scene_bounds,
     units_per_metre,
 )
@@ -214,6 +215,43 @@ def in_scene_units(cfg: TrainSceneConfig, units_per_m: float) -> TrainSceneConfi
     )
 
 
+#: ``field.hash_max_resolution: 0`` (from the data) stays within these: the presets' 2048 at least (a small
+#: capture keeps what it always had), and a bound on how fine a 2**19-row table can usefully be.
+AUTO_HASH_RESOLUTION = (2048, 16384)
+
+
+def finest_hash_resolution(data: SceneData, aabb, contract: bool,
+                           bounds: tuple[int, int] = AUTO_HASH_RESOLUTION) -> tuple[int, str]:
+    """The hash grid's finest resolution for ``data`` (its cameras at the training size) in the scene box
+    ``aabb (2, 3)``: the one whose finest cell spans one training pixel's footprint at the capture's typical
+    distance, rounded up to a multiple of 64 and kept within ``bounds``; with why, for the log.
+
+    The typical distance is the median camera-to-sparse-point distance (the depth at which the capture saw
+    things), else the median camera-to-box-centre distance. The footprint is that distance over the
+    training cameras' median focal length (px). With ``contract`` the box fills half the grid's side
+    (``nsim.fields.contraction``), else all of it. A 1080p phone capture of a room gets a grid some
+    four times finer than a 320 px one: the 2048 of the presets blurs what its pixels resolve.
+    """
+    aabb = np.asarray(torch.as_tensor(aabb).cpu(), dtype=np.float64)
+    centres = np.asarray(data.cam_to_world, np.float64)[:, :3, 3]
+    if data.points_xyz is not None and len(data.points_xyz) >= 8:
+        distance, source = camera_to_point_median(centres, data.points_xyz), "median camera-to-sparse-point distance"
+    else:
+        mid = aabb.mean(axis=0)
+        distance, source = float(np.median(np.linalg.norm(centres - mid, axis=-1))), "median camera-to-box-centre distance"
+    focal = float(np.median([max(c.fx, c.fy) for c in data.cameras]))
+    extent = float((aabb[1] - aabb[0]).max())
+    lo, hi = bounds
+    if not (distance > 0 and math.isfinite(distance) and focal > 0):
+        return lo, f"no typical distance to size it by ({source} {distance:.4g}): {lo}"
+    footprint = distance / focal
+    need = extent / ((0.5 if contract else 1.0) * footprint)
+    res = int(min(max(math.ceil(need / 64.0) * 64, lo), hi))
+    return res, (f"{res}: one training pixel ({focal:.0f} px focal) at the {source} {distance:.4g} spans "
+                 f"{footprint:.4g} units, the box's longest side {extent:.4g} units needs {need:.0f} cells "
+                 f"(kept within {lo}..{hi})")
+
+
 def z_depth_to_range(depth_z: Tensor, dirs_cam_z: Tensor) -> Tensor:
     """Range along the unit ray ``z / d_z`` from z-depth ``(R,)`` and the ray's camera-axes direction's
     z ``(R,)`` (``nsim.rendering.rays.camera_dirs``); 0 where there is no depth (``z <= 0``) or the ray
@@ -278,6 +316,10 @@ class SceneTrainer(ResumableTrainer):
             keep_large_blocks_on_heap()  # table-sized gradient buffers every step: no page faults (nsim/train/heap.py)
         self.train_ids, self.eval_ids = data.split(cfg.data.holdout_every)
         self.aabb = torch.as_tensor(scene_bounds(data, cfg.data))
+        if cfg.field.hash_max_resolution == 0:
+            res, why = finest_hash_resolution(data, self.aabb, cfg.field.contract)
+            log.info("field.hash_max_resolution from the data: %s", why)
+            cfg = self.cfg = replace(cfg, field=replace(cfg.field, hash_max_resolution=res))
         init = torch.Generator().manual_seed(_step_seed(seed, 0, "init"))
         from nsim.fields.hash_encoding import HashEncoding
 

@@ -166,3 +166,48 @@ def test_rays_without_a_direction_table_are_the_same_rays(tiny_data, monkeypatch
     for step in (0, 5):
         (ra, ta, _), (rb, tb, _) = tabled.batch(step), untabled.batch(step)
         assert torch.equal(ra.dirs, rb.dirs) and torch.equal(ra.near, rb.near) and torch.equal(ta, tb)
+
+
+def test_finest_hash_resolution_follows_the_pixel_footprint(tiny_data):
+    """``field.hash_max_resolution: 0``: one finest cell per training pixel at the median depth, whatever the
+    scene's units; finer images need a finer grid; clamped to the bounds; the trainer builds that grid."""
+    from nsim.train.scene import SceneTrainer, finest_hash_resolution, scene_bounds
+    from tests.train.test_scene import micro_cfg
+
+    pts = _depth_points(tiny_data)
+    data = dataclasses.replace(tiny_data, points_xyz=pts)
+    aabb = scene_bounds(data, TrainSceneConfig().data)
+    free = (2, 1 << 20)
+    res, why = finest_hash_resolution(data, aabb, contract=True, bounds=free)
+    d = camera_to_point_median(data.cam_to_world[:, :3, 3], pts)
+    f = np.median([max(c.fx, c.fy) for c in data.cameras])
+    need = float((aabb[1] - aabb[0]).max()) / (0.5 * d / f)  # the box fills half the contracted grid's side
+    assert res == int(np.ceil(need / 64) * 64) and "sparse-point" in why
+    # the box filling the whole grid: half the cells
+    assert finest_hash_resolution(data, aabb, contract=False, bounds=free)[0] == int(np.ceil(need / 2 / 64) * 64)
+    # the same scene in decimetres: the same grid
+    c2w = data.cam_to_world.copy()
+    c2w[:, :3, 3] *= 10.0
+    dm = dataclasses.replace(data, cam_to_world=c2w, points_xyz=pts * 10.0)
+    assert finest_hash_resolution(dm, aabb * 10.0, contract=True, bounds=free)[0] == res
+    # cameras with four times the pixels across: four times the cells (to the rounding)
+    sharp = dataclasses.replace(data, cameras=[c.scaled(4.0) for c in data.cameras])
+    assert finest_hash_resolution(sharp, aabb, contract=True, bounds=free)[0] == int(np.ceil(4 * need / 64) * 64)
+    # without points: the camera-to-box-centre distance; clamped to the bounds
+    assert "box-centre" in finest_hash_resolution(tiny_data, aabb, True, free)[1]
+    assert finest_hash_resolution(data, aabb, True, (res + 64, res + 640))[0] == res + 64
+    assert finest_hash_resolution(data, aabb, True, (2, res - 64))[0] == res - 64
+    # the trainer resolves 0 and builds (and saves: scene.json's field) the grid it names
+    cfg = micro_cfg(field={"hash_max_resolution": 0})
+    tr = SceneTrainer(data, cfg, seed=0)
+    want = finest_hash_resolution(tr.data, tr.aabb, cfg.field.contract)[0]
+    assert tr.cfg.field.hash_max_resolution == want == tr.model.field_cfg.hash_max_resolution
+    assert abs(tr.model.field.encoding.layout.resolutions[-1] - want) <= 1
+    assert tr.given_cfg.field.hash_max_resolution == 0
+
+
+def test_hash_max_resolution_one_is_refused():
+    from nsim.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"field.hash_max_resolution: expected 0 \(from the data\) or >= 2, got 1"):
+        from_dict(TrainSceneConfig, {"field": {"hash_max_resolution": 1}})
