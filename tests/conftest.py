@@ -2,12 +2,30 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from nsim.workspace.store import Store
 
 
+def pytest_configure(config):
+    """Under pytest-xdist (``make test``: one worker per core) each worker's torch gets its share of the cores,
+    so that two workers on two cores do not run four threads."""
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if workers:
+        import torch
+
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        torch.set_num_threads(max(1, cores // max(1, int(workers))))
+
+
 def pytest_collection_modifyitems(config, items):
+    # files holding slow (end-to-end) tests first: pytest-xdist hands out files in this order, so the longest
+    # ones start at once instead of running alone at the end
+    slow_files = {item.path for item in items if "slow" in item.keywords}
+    items.sort(key=lambda item: item.path not in slow_files)
+
     import torch
 
     if torch.cuda.is_available():
