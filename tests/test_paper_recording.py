@@ -24,9 +24,6 @@ from tests.test_paper import MICRO_TRAIN
 
 REPO = Path(__file__).resolve().parents[1]
 
-AGREE_PSNR_DB = 1.0  # raw spot-rgb PSNR, sim vs recording against sim vs oracle
-
-
 def load_paper():
     spec = importlib.util.spec_from_file_location("paper_pipeline", REPO / "pipelines" / "paper.py")
     module = importlib.util.module_from_spec(spec)
@@ -72,7 +69,7 @@ def test_recording_path_registers_renders_and_scores_the_log(tmp_path, monkeypat
 
     # the five tables against the recording, the four the oracle has against the twin
     assert list(run.tables) == ["spot-rgb", "spot-depth", "lidar", "slam", "detection"]
-    assert list(run.oracle) == ["spot-rgb", "spot-depth", "slam", "detection"]
+    assert list(run.oracle) == ["spot-rgb", "spot-depth", "lidar", "slam", "detection"]
     rgb = run.tables["spot-rgb"].rows
     assert [r["Camera"] for r in rgb] == ["left"] and rgb[0]["frames"] == 2
     assert finite(rgb[0]["PSNR"]) and finite(rgb[0]["PSNR cc"]) and rgb[0]["PSNR cc"] >= rgb[0]["PSNR"]
@@ -89,12 +86,15 @@ def test_recording_path_registers_renders_and_scores_the_log(tmp_path, monkeypat
     rows = paper.agreement(run.oracle, run.tables)
     psnr = next(r for r in rows if r["table"] == "spot-rgb" and r["metric"] == "PSNR [dB]")
     assert psnr["diff"] == pytest.approx(psnr["recording"] - psnr["oracle"])
-    # The stated tolerance: the recording's render scored against the recording, and the twin (the same
-    # sensors at the same ticks from the true trajectory) against the oracle, agree within AGREE_PSNR_DB
-    # (the log's faults and the registration are all that differ;
-    # +0.07 dB measured by bench/robot_log.py --quick, +0.13 dB at --size small in docs/results.md)
-    assert abs(psnr["diff"]) < AGREE_PSNR_DB, psnr
-    assert next(r for r in rows if r["table"] == "lidar")["oracle"] is None
+    # The stated tolerances (paper.AGREEMENT_TOLERANCE): the recording's render scored against the recording, and
+    # the twin (the same sensors at the same ticks from the true trajectory) against the oracle, agree (the log's
+    # faults and the registration are all that differ). Raw PSNR and the LiDAR's numbers are checked here; depth
+    # AbsRel of a 30-step scene (6-9) says nothing, bench/robot_log.py measures it on a trained one.
+    assert psnr["tolerance"] == paper.AGREEMENT_TOLERANCE[("spot-rgb", "PSNR [dB]")] and psnr["within"], psnr
+    for metric in ("range err median [m]", "hit agreement"):
+        lidar_row = next(r for r in rows if r["table"] == "lidar" and r["metric"] == metric)
+        assert lidar_row["oracle"] is not None and lidar_row["within"], lidar_row
+    assert "±0.05 within" in paper.agreement_text(rows)
     assert "sim vs recording" in paper.agreement_text(rows)
 
     for ref in ("recording/paper-robot-log", "registration/paper-robot-log", "render/paper-recording",

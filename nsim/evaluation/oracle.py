@@ -43,6 +43,15 @@ def sensor_depth_gt(sensor, depth_range_m: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(depth_range_m) | np.isinf(depth_range_m), depth, np.nan)
 
 
+def _sweep_points(xyz_m: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """An organised sweep ``(C, A, 3)`` + ``(C, A)`` as the LiDAR table's rows ``(C * A, 4)``: X, Y, Z, range; NaN
+    where there is no return (no finite range or point)."""
+    xyz = np.asarray(xyz_m, np.float64).reshape(-1, 3)
+    rng = np.asarray(range_m, np.float64).reshape(-1)
+    hit = np.isfinite(rng) & np.isfinite(xyz).all(axis=-1)
+    return np.where(hit[:, None], np.concatenate([xyz, rng[:, None]], axis=-1), np.nan)
+
+
 class OracleTruth(GroundTruth):
     """The test room's oracle (module docstring); for ``scenes`` also the captured frames."""
 
@@ -229,8 +238,36 @@ class OracleTruth(GroundTruth):
             yield dataclasses.replace(group, frames=rows)
 
     def lidar_frames(self) -> Iterator[SensorFrames]:
-        raise InputError("--table lidar scores a recording-mode render (nsim render --recording REC) against its "
-                         "recording's LiDAR sweeps; the test room's oracle has no LiDAR table")
+        """Per render and LiDAR, ``FramePair(index, sim (N, 4), real (N, 4))``: the rendered sweep
+        (``<lidar>/scan/NNNNNN.exr``) and the oracle's exact one from the same sensor pose (the rig's extrinsic on
+        ``robot.tum``'s body pose), same beams and order, with the render's people as actors; rows X, Y, Z in the
+        sensor frame and range, NaN where there is no return."""
+        from nsim.io.lidar_exr import read_lidar_exr
+        from nsim.io.tum import read_tum
+
+        self._require_trajectory()
+        for r in self.renders:
+            room = self.require_room(r)
+            lidars = r.rig().lidars
+            if not lidars:
+                raise InputError(f"render {r.short}: its rig has no LiDAR to score (--table lidar)")
+            body = read_tum(r.file("robot.tum")).poses_se3()
+            if len(body) != len(r.frames):
+                raise InputError(f"render {r.short}: robot.tum has {len(body)} poses for its {len(r.frames)} frames")
+            actors = self.actors(r)
+            for s in lidars:
+                rows = []
+                for f, T in zip(r.frames, body, strict=True):
+                    i = int(f["index"])
+                    scan = read_lidar_exr(r.file(f"{s.name}/scan/{i:06d}.exr"))
+                    gt = self.oracle(room).lidar_gt(s.world_pose(T), s, actors=actors(i) if actors is not None else None)
+                    if scan.range_m.shape != gt.ranges_m.shape:
+                        raise InputError(f"render {r.short}: {s.name}/scan/{i:06d}.exr is {scan.range_m.shape[0]}x"
+                                         f"{scan.range_m.shape[1]} beams, the rig's {s.name} {gt.ranges_m.shape[0]}x"
+                                         f"{gt.ranges_m.shape[1]}")
+                    rows.append(FramePair(i, _sweep_points(scan.xyz_m, scan.range_m),
+                                          _sweep_points(gt.points_lidar_m, gt.ranges_m)))
+                yield SensorFrames(r, s.name, rows, np.asarray(s.sensor_to_body))
 
     def slam_sequences(self) -> Iterator[SlamSequence]:
         from nsim.io.tum import Trajectory
@@ -317,6 +354,9 @@ class OracleTruth(GroundTruth):
                     "frame's camera pose, inside the camera's valid range, without noise or quantisation",
                     "simulated readings reported invalid (NaN: nearer than the camera's minimum range) where the "
                     f"ground truth is valid count as that minimum ({total} px)"]
+        if table == "lidar":
+            return ["ground truth: the test room's oracle scan of each LiDAR (the rig's beams, exact ranges, no noise "
+                    "or dropout) from the body pose of robot.tum and the rig's extrinsic, with the render's people"]
         if table == "slam":
             return ["real frames: the test room's oracle at the same camera poses; ground truth: the camera's poses "
                     "(cameras/<camera>.json)"]
@@ -334,5 +374,6 @@ class OracleTruth(GroundTruth):
     def described(self, table: str) -> dict[str, str]:
         what = {"spot-rgb": "test-room oracle at the rendered camera poses",
                 "spot-depth": "test-room oracle depth at the rendered camera poses",
+                "lidar": "test-room oracle LiDAR scans at the rendered body poses (robot.tum)",
                 "slam": f"camera poses cameras/{self.cfg.slam.camera}.json; real frames from the test-room oracle"}
         return {r.id: what[table] for r in self.renders} if table in what else {}

@@ -191,6 +191,53 @@ def test_spot_render_equal_to_the_oracle_is_exact(world):
         assert cell(row["AbsRel"]) < 1e-6 and cell(row["δ<1.05"]) == 1.0
 
 
+def test_lidar_against_the_oracle(world):
+    """The LiDAR table against the oracle: a render's sweeps score finite; the oracle's own exact sweeps written as
+    the render's score 0 m with every beam agreeing; the same sweeps 10 cm long score a 10 cm median and bias."""
+    from nsim.io.lidar_exr import read_lidar_exr, write_lidar_exr
+    from nsim.io.tum import read_tum
+    from nsim.sensors.rig import Rig
+    from nsim.synth.oracle import RoomOracle
+    from nsim.synth.room import RoomSpec
+
+    ws = str(world.root)
+    assert main(["--workspace", ws, "--device", "cpu", "render", "--trajectory", "trajectory/t", "--scene", "scene/t",
+                 "--rig", str(SPOT), "--preset", "tiny", "--set", "sensors=[lidar]", "--set", "max_frames=2",
+                 "--tag", "render/lidar"]) == 0
+    assert evaluate(world, "lidar", "render/lidar") == 0
+    _, table, records = latest(world)
+    (row,) = table["rows"]
+    assert row["LiDAR"] == "lidar" and row["frames"] == 2 and len(records) == 2
+    # a 30-step scene: finite, no bound (its haze stops beams early)
+    assert math.isfinite(cell(row["range err median [m]"])) and 0.0 < cell(row["hit agreement"]) <= 1.0
+
+    cap = world.get(world.resolve("capture/t"))
+    oracle = RoomOracle(RoomSpec.from_dict(json.loads(cap.file("room.json").read_text())["spec"]))
+
+    def oracle_sweeps(offset_m: float):
+        def edit(d: Path) -> None:
+            rig = Rig.from_resolved(json.loads((d / "rig.json").read_text()))
+            body = read_tum(d / "robot.tum").poses_se3()
+            meta = json.loads((d / "render.json").read_text())
+            for f, T in zip(meta["frames"], body, strict=True):
+                s = rig["lidar"]
+                path = d / "lidar" / "scan" / f"{f['index']:06d}.exr"
+                exact = oracle.lidar_gt(s.world_pose(T), s).ranges_m
+                assert read_lidar_exr(path).range_m.shape == exact.shape
+                write_lidar_exr(path, s.scan(exact + np.float32(offset_m)), sensor=s.name,
+                                elevations_deg=s.elevations_deg)
+        return edit
+
+    assert evaluate(world, "lidar", variant(world, "render/lidar", "oracle-lidar", oracle_sweeps(0.0))) == 0
+    (row,) = latest(world)[1]["rows"]
+    assert cell(row["range err median [m]"]) < 1e-5 and cell(row["Chamfer [m]"]) < 1e-5
+    assert cell(row["hit agreement"]) == 1.0
+    assert evaluate(world, "lidar", variant(world, "render/lidar", "oracle-lidar+10cm", oracle_sweeps(0.1))) == 0
+    (row,) = latest(world)[1]["rows"]
+    assert cell(row["range err median [m]"]) == pytest.approx(0.1, abs=1e-4)
+    assert cell(row["range bias [m]"]) == pytest.approx(0.1, abs=1e-4)
+
+
 def test_slam_failure_is_not_available(world):
     """Three 64x48 frames are too few for SfM: the row is n/a with the reason, not a crash."""
     assert evaluate(world, "slam", "render/spot") == 0
