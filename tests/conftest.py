@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -21,10 +22,11 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(config, items):
-    # files holding slow (end-to-end) tests first: pytest-xdist hands out files in this order, so the longest
-    # ones start at once instead of running alone at the end
+    # files holding slow tests first, the whole-pipeline ones (tests/test_*.py: demo, paper) before the rest:
+    # pytest-xdist hands out files in this order, so the longest start at once instead of running alone at the end
     slow_files = {item.path for item in items if "slow" in item.keywords}
-    items.sort(key=lambda item: item.path not in slow_files)
+    root = Path(__file__).resolve().parent
+    items.sort(key=lambda item: (item.path not in slow_files, item.path.parent != root))
 
     import torch
 
