@@ -545,33 +545,38 @@ AGREEMENT = (
 )
 
 
-#: How far the tables against the recording may be from the twin's against the oracle (|recording - oracle|), per
-#: (table, metric): the log's faults (noise, exposure, JPEG, depth holes and minimum range, LiDAR dropout and range
-#: noise, odometry drift, the clock offset) and the registration are all that separates the two sides. Raw PSNR
-#: (the colour-corrected one is expected to differ: it corrects the recording's exposure); depth AbsRel over the
-#: real sensor's valid pixels; the LiDAR's median range error and hit agreement (the log drops 2 % of the returns);
-#: SLAM's ATE on the simulated frames. Measured by bench/robot_log.py (README, issue notes).
+#: How far the tables against the recording may be from the twin's against the oracle, per (table, metric):
+#: ``("abs", x)``: |recording - oracle| <= x; ``("rel", x)``: <= x * |oracle|. The log's faults (noise, exposure,
+#: JPEG, depth holes and minimum range, LiDAR dropout and range noise, odometry drift, the clock offset) and the
+#: registration are all that separates the two sides. Raw PSNR (the colour-corrected one is meant to differ: it
+#: corrects the recording's exposure); depth AbsRel, relative: the two sides score different pixels (the
+#: recording's holes and minimum range), which moves AbsRel in proportion to the scene's error (measured -22 %
+#: at --quick and -23 % at --size small on 30- and 300-step scenes); the LiDAR's median range error and hit
+#: agreement (the log drops 2 % of the returns; -1.3 cm and -0.001 at --quick); SLAM's ATE on the simulated frames
+#: (not yet measured: SfM registers no rendered frame below --size default). bench/robot_log.py prints them.
 AGREEMENT_TOLERANCE = {
-    ("spot-rgb", "PSNR [dB]"): 1.0,
-    ("spot-depth", "AbsRel"): 0.05,
-    ("lidar", "range err median [m]"): 0.05,
-    ("lidar", "hit agreement"): 0.05,
-    ("slam", "ATE sim [m]"): 0.05,
+    ("spot-rgb", "PSNR [dB]"): ("abs", 1.0),
+    ("spot-depth", "AbsRel"): ("rel", 0.25),
+    ("lidar", "range err median [m]"): ("abs", 0.05),
+    ("lidar", "hit agreement"): ("abs", 0.05),
+    ("slam", "ATE sim [m]"): ("abs", 0.05),
 }
 
 
 def agreement(oracle: dict, recording: dict) -> list[dict[str, Any]]:
     """Per table and metric: the mean over the table's rows against the oracle (the twin render) and against the
     recording, recording minus oracle (None where a side has no number), the tolerance on it
-    (``AGREEMENT_TOLERANCE``, None: none stated) and whether the difference is within it (None: nothing to judge)."""
+    (``AGREEMENT_TOLERANCE``: ``(kind, x)``, None: none stated) and whether the difference is within it (None:
+    nothing to judge)."""
     out = []
     for table, metric, o_col, r_col in AGREEMENT:
         o = _mean(oracle[table], o_col) if o_col and table in oracle else None
         r = _mean(recording[table], r_col) if table in recording else None
         diff = r - o if o is not None and r is not None else None
         tol = AGREEMENT_TOLERANCE.get((table, metric))
+        bound = None if tol is None or diff is None else tol[1] * (abs(o) if tol[0] == "rel" else 1.0)
         out.append({"table": table, "metric": metric, "oracle": o, "recording": r, "diff": diff, "tolerance": tol,
-                    "within": None if diff is None or tol is None else abs(diff) <= tol})
+                    "within": None if bound is None else abs(diff) <= bound})
     return out
 
 
@@ -582,8 +587,9 @@ def agreement_text(rows: list[dict[str, Any]]) -> str:
     def judged(r):
         if r["tolerance"] is None:
             return ""
+        kind, x = r["tolerance"]
         verdict = {None: "n/a", True: "within", False: "OUTSIDE"}[r["within"]]
-        return f"{'±' + format(r['tolerance'], 'g'):>7} {verdict}"
+        return f"{'±' + format(x, 'g') + (' x' if kind == 'rel' else ''):>7} {verdict}"
 
     lines = [f"{'table':<11} {'metric':<40} {'sim vs oracle':>14} {'sim vs recording':>17} {'difference':>11} "
              f"{'tolerance':>9}"]
