@@ -31,10 +31,12 @@ setup: $(STAMP)
 
 # The test suite (what CI runs): everything but GPU-only tests, slow end-to-end runs at tiny size. Test files run in
 # TEST_WORKERS processes (pytest-xdist; auto: one per core), each file's tests in one of them (module fixtures are
-# built once); tests/conftest.py shares the cores' threads among the workers. TEST_WORKERS=0: one process.
+# built once), in the order tests/conftest.py gives them (the end-to-end files first; xdist would otherwise start
+# the files with the most tests first and the one-test demo last); tests/conftest.py also shares the cores' threads
+# among the workers. TEST_WORKERS=0: one process.
 TEST_WORKERS ?= auto
 test: setup
-	$(BIN)/python -m pytest -q -m "not gpu" -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -m "not gpu" -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
 
 # The smoke subset with every dependency at the floor pyproject.toml states (scripts/floors.py; torch at TORCH),
 # in a fresh $(FLOORS_VENV) each time. Needs the package index (old versions are downloaded).

@@ -139,7 +139,8 @@ class OracleTruth(GroundTruth):
 
         Person k is posed exactly as the render poses it (``HumanSet.joint_transforms``: the run's
         position, heading, gait phase and height through the same skeleton and gait loop) and dressed
-        like the actor its human checkpoint (``k mod M``) was trained from; a checkpoint trained from a
+        like the actor its human checkpoint was trained from (the render's choice: its summary's
+        ``people_checkpoints``; k mod M for renders from before it was recorded); a checkpoint trained from a
         data folder has no test-room actor: appearance seed k."""
         if not r.humans:
             return None
@@ -154,13 +155,17 @@ class OracleTruth(GroundTruth):
         arrays = read_npz(self.store.get(traj).file("trajectory.npz"))
         people = HumanSet([], arrays, "cpu")
         seeds = self.actor_seeds(r)
+        humans = list(r.humans)
+        drew = r.manifest.get("summary", {}).get("people_checkpoints")  # what the render chose (person_checkpoints)
+        n = int(np.asarray(arrays["height_m"]).shape[0])
+        chosen = [humans.index(h) for h in drew] if drew else [k % len(humans) for k in range(n)]
         bodies: dict[int, Any] = {}
 
         def at(tick: int) -> list:
             placed = []
             for k, T in people.joint_transforms(tick):
                 if k not in bodies:
-                    seed = seeds[k % len(seeds)]
+                    seed = seeds[chosen[k]]
                     bodies[k] = Actor(float(arrays["height_m"][k]), seed=k if seed is None else seed)
                 placed.append(PlacedActor(bodies[k], T, instance_id=k + 1))
             return placed

@@ -2,8 +2,8 @@
 
 ``HumanSet`` holds the run's people (a ``trajectory`` of ``nsim simulate``: per tick and person
 ``position_m (T, P, 2)``, ``heading_rad (T, P)``, ``gait_phase (T, P)``, per person ``height_m (P,)``
-and optionally ``motion (P,)``) and the human checkpoints that draw them (person k uses checkpoint
-k mod M). Per frame:
+and optionally ``motion (P,)`` and ``appearance (P,)``) and the human checkpoints that draw them
+(``person_checkpoints``: the one a person's scenario entry names, else checkpoint k mod M). Per frame:
 
 1. ``joint_transforms`` / ``joint_transforms_at``: each person still in the run posed by its gait
    loop (``nsim.human.motion.LocomotionLoop``) and skeleton, at a tick or between ticks;
@@ -19,26 +19,67 @@ Used by ``nsim.rendering.shard`` (``nsim render``) and, for the ground truth of 
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from nsim.errors import InputError
+from nsim.errors import InputError, NsimError
+
+log = logging.getLogger(__name__)
+
+
+def person_checkpoints(appearance, human_ids, find, source: str = "trajectory") -> list[int]:
+    """Which of a render's human checkpoints draws each person: ``(P,)`` indices into ``human_ids``.
+
+    appearance: per person, the scenario's ``humans[k].appearance`` (a human-checkpoint ref or id; ``""`` or
+    None: none named); human_ids: the render's checkpoints (ids, in ``--humans`` order); find: a name -> its
+    artifact id, or None when the workspace has nothing of that name (``Store.find``; raising ``NsimError`` for
+    an ambiguous or dangling one). A person whose name is found is drawn by that checkpoint, which must be among
+    ``human_ids``; the others by checkpoint ``k mod M``. A name the workspace does not have is only a warning
+    (scenario files travel between workspaces: ``nsim tag human/ana ID`` gives it a meaning here). A
+    checkpoint not among ``human_ids``, or a bad name, is one ``InputError`` line naming ``source`` and the
+    person."""
+    ids = list(human_ids)
+    if not ids:
+        raise InputError(f"{source}: people need at least one human checkpoint (--humans)")
+    out, unknown = [], []
+    for k, name in enumerate(appearance):
+        name = "" if name is None else str(name)
+        try:
+            hid = find(name) if name else None
+        except NsimError as err:  # ambiguous, a ref to a missing artifact, another kind
+            raise InputError(f"{source}: humans[{k}].appearance {name!r}: {err}") from None
+        if hid is None:
+            if name:
+                unknown.append(f"humans[{k}] {name!r}")
+            out.append(k % len(ids))
+            continue
+        if hid not in ids:
+            raise InputError(f"{source}: humans[{k}].appearance {name!r} is human checkpoint {hid[:12]}, which is "
+                             f"not among the render's --humans ({', '.join(i[:12] for i in ids)}): add it")
+        out.append(ids.index(hid))
+    if unknown:
+        log.warning("%s: no human checkpoint in this workspace is named %s: drawn by checkpoint k mod %d instead "
+                    "(nsim tag NAME ID names one)", source, ", ".join(unknown), len(ids))
+    return out
 
 
 class HumanSet:
-    """The trajectory's people, each drawn by a human checkpoint (person k uses checkpoint k mod M)."""
+    """The trajectory's people, each drawn by a human checkpoint: person k by ``models[person_model[k]]``
+    (``person_checkpoints``; None: checkpoint k mod M)."""
 
-    def __init__(self, models: list, arrays: dict[str, np.ndarray], device) -> None:
+    def __init__(self, models: list, arrays: dict[str, np.ndarray], device, person_model=None) -> None:
         self.models = models
         self.arrays = arrays
         self.device = device
+        self.person_model = None if person_model is None else [int(m) for m in person_model]
         self._loops: dict[tuple[str, float], Any] = {}
 
     @classmethod
-    def load(cls, human_dirs: list[str], trajectory_file: str | None, device) -> HumanSet:
+    def load(cls, human_dirs: list[str], trajectory_file: str | None, device, person_model=None) -> HumanSet:
         from nsim.human.nerf import load_human_model
 
         if trajectory_file is None:
@@ -46,7 +87,12 @@ class HumanSet:
         from nsim.io.npz import read_npz
 
         arrays = read_npz(Path(trajectory_file))
-        return cls([load_human_model(d, device=device).eval() for d in human_dirs], arrays, device)
+        return cls([load_human_model(d, device=device).eval() for d in human_dirs], arrays, device, person_model)
+
+    def model_index(self, k: int) -> int:
+        """The checkpoint (index into the render's human checkpoints) that draws person ``k``."""
+        n = len(self.models)
+        return self.person_model[k] if self.person_model is not None else k % n
 
     def _loop(self, motion: str, height: float):
         from nsim.human.gait import DEFAULT_CLIPS, default_clip
@@ -113,7 +159,7 @@ class HumanSet:
         people = []
         o = d = None
         for k, T in posed:
-            model = self.models[k % len(self.models)]
+            model = self.models[self.model_index(k)]
             with torch.no_grad():
                 lo, hi = model.posed_box(torch.as_tensor(T, dtype=torch.float32)).reshape(2, 3).cpu().numpy()
             box = OrientedBox.from_min_max(lo.astype(np.float64), hi.astype(np.float64), np.eye(4))

@@ -333,10 +333,31 @@ def baked_dir(inputs, cfg, ctx: RunContext, shard_root: Path) -> str | None:
     return str(dest)
 
 
-def shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root) -> dict:
+def person_models(inputs, ctx) -> list[int] | None:
+    """Per person of the trajectory, the index (into ``inputs.humans``) of the human checkpoint that draws it
+    (``nsim.rendering.people.person_checkpoints``: the scenario's ``humans[k].appearance``, else k mod M); None
+    without people. Checked before any work: a name that is unknown or not among ``--humans`` is one line."""
+    if not inputs.humans or inputs.trajectory is None:
+        return None
+    from nsim.io.npz import read_npz
+    from nsim.rendering.people import person_checkpoints
+
+    store = ctx.store
+    arrays = read_npz(store.get(inputs.trajectory).file("trajectory.npz"))
+    n = int(np.asarray(arrays["height_m"]).shape[0])
+    appearance = [str(a) for a in arrays["appearance"]] if "appearance" in arrays else [""] * n
+    if len(appearance) != n:
+        raise InputError(f"trajectory {inputs.trajectory[:12]}: trajectory.npz has {len(appearance)} appearance "
+                         f"entries for {n} people")
+    return person_checkpoints(appearance, inputs.humans, lambda name: store.find(name, kind="human-checkpoint"),
+                              source=f"trajectory {inputs.trajectory[:12]}")
+
+
+def shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root, person_model=None) -> dict:
     """What every shard worker needs, as plain data (paths, the rig as a dict, the seed, the device):
     the render stage's resolved ``inputs`` and ``cfg``, the adapted ``rig`` (or None), the recording's
-    ``streams`` (or None), the ``shards`` and the folder they are rendered into."""
+    ``streams`` (or None), the ``shards`` and the folder they are rendered into, and which checkpoint draws
+    each person (``person_models``; None: k mod M)."""
     store = ctx.store
     recording_dir = None
     if inputs.registration:
@@ -345,6 +366,7 @@ def shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root) -> dict:
         "workspace": str(store.root),
         "scene_dir": str(store.get(inputs.scene).path),
         "human_dirs": [str(store.get(h).path) for h in inputs.humans],
+        "person_model": person_model,
         "trajectory_file": str(store.get(inputs.trajectory).file("trajectory.npz")) if inputs.trajectory else None,
         "rig": rig.to_dict() if rig is not None else None,
         "recording_dir": recording_dir,

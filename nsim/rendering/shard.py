@@ -84,7 +84,8 @@ class ShardRenderer:
             self.rig = Rig.from_resolved(job["rig"])
             if not cfg.noise:
                 self.rig = _without_noise(self.rig)
-        self.humans = HumanSet.load(job["human_dirs"], job["trajectory_file"], self.device) if job["human_dirs"] else None
+        self.humans = (HumanSet.load(job["human_dirs"], job["trajectory_file"], self.device, job.get("person_model"))
+                       if job["human_dirs"] else None)
         self.streams = {}  # recording mode: stream key -> its CameraSensor (camera, depth) or None (LiDAR)
         for st in job.get("streams") or ():
             self.streams[st["key"]] = _stream_sensor(st)

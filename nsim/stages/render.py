@@ -190,8 +190,10 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     return Inputs(scene=scene, registration=reg, trajectory=traj, humans=humans)
 
 
-def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig) -> str:
+def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig, person_model=None) -> str:
     extra = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
+    if person_model is not None and person_model != [k % len(inputs.humans) for k in range(len(person_model))]:
+        extra["people"] = person_model  # the scenario names checkpoints (refs can move: the resolved choice)
     if cfg.method == "baked" and inputs.baked is None:  # baked here: with BakeConfig()'s settings
         from nsim.config import to_dict
         from nsim.rendering.baked import BakeConfig
@@ -216,7 +218,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
     inputs = resolve_inputs(inputs, ctx)
     render_plan.check_method(inputs, cfg)
     rig = render_plan.load_rig(inputs, cfg)
-    key = action_key(inputs, cfg, ctx, rig)
+    people = render_plan.person_models(inputs, ctx)
+    key = action_key(inputs, cfg, ctx, rig, people)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(render=hit.id, cache_hit=True)
 
@@ -230,7 +233,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
     shard_root.mkdir(parents=True, exist_ok=True)
     keys = [render_plan.shard_key(key, s) for s in shards]
     present = sum((shard_root / k).is_dir() for k in keys)
-    job = render_plan.shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root)
+    job = render_plan.shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root, people)
     factory = partial(ShardRenderer, job, cfg)
     done = run_shards(factory, list(range(len(shards))), shard_root, lambda i: keys[i], engine or EngineConfig(),
                       progress=ctx.show_progress)
@@ -239,6 +242,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
         summary = assemble(out.dir, inputs, cfg, rig, frames, [done[i] for i in range(len(shards))], ctx,
                            streams=streams, recording_dir=job["recording_dir"])
         out.summary.update(summary)
+        if people is not None:  # which human checkpoint drew each person (person_checkpoints)
+            out.summary["people_checkpoints"] = [inputs.humans[m] for m in people]
         if cfg.method == "baked":
             out.summary["baked_scene"] = inputs.baked or "baked by the render (BakeConfig defaults)"
     shutil.rmtree(shard_root, ignore_errors=True)

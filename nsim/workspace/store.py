@@ -930,6 +930,14 @@ class Store:
 
     def resolve(self, spec: str, kind: str | None = None) -> str:
         """An artifact id from an id, a unique id prefix (>= 4 hex digits) or a ref name."""
+        art_id = self.find(spec, kind)
+        if art_id is None:
+            raise InputError(f"no artifact or ref named '{spec.strip()}' in workspace {self.root} (see 'nsim ls')")
+        return art_id
+
+    def find(self, spec: str, kind: str | None = None) -> str | None:
+        """:meth:`resolve`, but None where nothing in the workspace has that name (an ambiguous prefix, a dangling
+        ref or another kind still raise)."""
         spec = spec.strip()
         if not spec:
             raise InputError("empty artifact reference")
@@ -952,7 +960,7 @@ class Store:
             if hits:
                 art_id = hits[0]
         if art_id is None:
-            raise InputError(f"no artifact or ref named '{spec}' in workspace {self.root} (see 'nsim ls')")
+            return None
         if kind is not None:
             actual = self.get(art_id).kind
             if actual != kind:

@@ -272,6 +272,48 @@ def people(world):
     return world
 
 
+def test_a_scenario_names_the_checkpoint_that_draws_a_person(people, tmp_path, capsys):
+    """``humans[k].appearance`` in the scenario picks person k's human checkpoint among ``--humans`` (the others,
+    and names this workspace does not have: k mod M); the render says which drew whom; a checkpoint that is not
+    among them is one line (exit 2) before any work, and nothing is published."""
+    ws = str(people.root)
+    assert main(["--workspace", ws, "--device", "cpu", "train-human", "--capture", "capture/actor", "--preset", "tiny",
+                 "--steps", "61", "--tag", "human/t2"]) == 0
+    spec = json.loads((configs_dir() / "scenarios" / "spot_run.json").read_text())
+
+    def scenario(name: str, appearance: str) -> str:
+        doc = json.loads(json.dumps(spec))
+        doc["humans"][0]["appearance"] = appearance
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(doc))
+        assert main(["--workspace", ws, "simulate", "--preset", "tiny", "--set", "max_duration_s=2.0", "--scenario",
+                     str(path), "--tag", f"trajectory/{name}"]) == 0
+        return f"trajectory/{name}"
+
+    def render(traj: str, *humans: str) -> int:
+        args = ["--workspace", ws, "--device", "cpu", "render", "--trajectory", traj, "--scene", "scene/t",
+                "--rig", str(SPOT), "--preset", "tiny", "--set", "sensors=[left]", "--set", "max_frames=1"]
+        for h in humans:
+            args += ["--humans", h]
+        return main([*args, "--tag", "render/named"])
+
+    t, t2 = people.resolve("human/t"), people.resolve("human/t2")
+    n = len(spec["humans"])
+    assert render(scenario("named", "human/t2"), "human/t", "human/t2") == 0
+    summary = people.get(people.resolve("render/named")).manifest["summary"]
+    assert summary["people_checkpoints"] == [t2] + [(t, t2)[k % 2] for k in range(1, n)]
+    # spot_run itself names human/ana, human/ben ...: not in this workspace, so a warning and k mod M
+    assert render("trajectory/t", "human/t", "human/t2") == 0
+    assert people.get(people.resolve("render/named")).manifest["summary"]["people_checkpoints"] == \
+        [(t, t2)[k % 2] for k in range(n)]
+    before = people.all_ids()
+    capsys.readouterr()
+    assert render("trajectory/named", "human/t") == 2
+    err = capsys.readouterr().err.strip()
+    assert "humans[0].appearance 'human/t2' is human checkpoint" in err and "add it" in err and "\n" not in err
+    assert set(people.all_ids()) == set(before)
+
+
 def test_spot_render_with_people_shows_them(people):
     """The run's people are in view of the Spot cameras: the render's person masks and COCO boxes."""
     art = people.get(people.resolve("render/people"))
