@@ -39,7 +39,7 @@ def person_checkpoints(appearance, human_ids, find, source: str = "trajectory") 
     artifact id, or None when the workspace has nothing of that name (``Store.find``; raising ``NsimError`` for
     an ambiguous or dangling one). A person whose name is found is drawn by that checkpoint, which must be among
     ``human_ids``; the others by checkpoint ``k mod M``. A name the workspace does not have is only a warning
-    (scenario files travel between workspaces: ``nsim tag human/ana ID`` gives it a meaning here). A
+    (scenario files travel between workspaces: ``nsim tag ID human/ana`` gives it a meaning here). A
     checkpoint not among ``human_ids``, or a bad name, is one ``InputError`` line naming ``source`` and the
     person."""
     ids = list(human_ids)
@@ -63,7 +63,7 @@ def person_checkpoints(appearance, human_ids, find, source: str = "trajectory") 
         out.append(ids.index(hid))
     if unknown:
         log.warning("%s: no human checkpoint in this workspace is named %s: drawn by checkpoint k mod %d instead "
-                    "(nsim tag NAME ID names one)", source, ", ".join(unknown), len(ids))
+                    "(nsim tag ID NAME names one)", source, ", ".join(unknown), len(ids))
     return out
 
 
