@@ -448,7 +448,8 @@ TWIN_LIDAR = "lidar"
 
 def twin_overrides(size: str, truth: dict[str, Any]) -> list[str]:
     """Render overrides of the twin: the sensors the recording render draws (the LiDAR at the log's azimuth scale),
-    at the log's size, at the ticks of its frames (every ``render.tick_stride``-th of the log's ticks, which are every ``robot_log.tick_stride``-th)."""
+    at the log's size, at the ticks of its frames (every ``render.tick_stride``-th of the log's ticks, which are
+    every ``robot_log.tick_stride``-th)."""
     log_cfg = rec_cfg(capture.RobotLogConfig, "robot_log", size, "robot_log")
     ren_cfg = rec_cfg(render.Config, "render", size, "render")
     ticks = math.ceil(len(truth["stamps_s"]) / ren_cfg.tick_stride)

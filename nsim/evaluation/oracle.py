@@ -28,7 +28,7 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, uint8_rgb
-from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence
+from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence, lidar_rows
 
 TRAJECTORY_HOW = "nsim render --trajectory RUN --rig configs/robots/spot.yaml"
 
@@ -41,15 +41,6 @@ def sensor_depth_gt(sensor, depth_range_m: np.ndarray) -> np.ndarray:
     rng = np.nan_to_num(np.asarray(depth_range_m, dtype=np.float64), nan=np.inf)
     depth = apply_depth_model(sensor.depth_from_range(rng), exact, None)
     return np.where(np.isfinite(depth_range_m) | np.isinf(depth_range_m), depth, np.nan)
-
-
-def _sweep_points(xyz_m: np.ndarray, range_m: np.ndarray) -> np.ndarray:
-    """An organised sweep ``(C, A, 3)`` + ``(C, A)`` as the LiDAR table's rows ``(C * A, 4)``: X, Y, Z, range; NaN
-    where there is no return (no finite range or point)."""
-    xyz = np.asarray(xyz_m, np.float64).reshape(-1, 3)
-    rng = np.asarray(range_m, np.float64).reshape(-1)
-    hit = np.isfinite(rng) & np.isfinite(xyz).all(axis=-1)
-    return np.where(hit[:, None], np.concatenate([xyz, rng[:, None]], axis=-1), np.nan)
 
 
 class OracleTruth(GroundTruth):
@@ -270,8 +261,8 @@ class OracleTruth(GroundTruth):
                         raise InputError(f"render {r.short}: {s.name}/scan/{i:06d}.exr is {scan.range_m.shape[0]}x"
                                          f"{scan.range_m.shape[1]} beams, the rig's {s.name} {gt.ranges_m.shape[0]}x"
                                          f"{gt.ranges_m.shape[1]}")
-                    rows.append(FramePair(i, _sweep_points(scan.xyz_m, scan.range_m),
-                                          _sweep_points(gt.points_lidar_m, gt.ranges_m)))
+                    rows.append(FramePair(i, lidar_rows(scan.xyz_m, scan.range_m),
+                                          lidar_rows(gt.points_lidar_m, gt.ranges_m)))
                 yield SensorFrames(r, s.name, rows, np.asarray(s.sensor_to_body))
 
     def slam_sequences(self) -> Iterator[SlamSequence]:

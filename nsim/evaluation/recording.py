@@ -36,7 +36,7 @@ import numpy as np
 
 from nsim.errors import InputError, NsimError
 from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, uint8_rgb
-from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence
+from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence, lidar_rows
 from nsim.rendering.recording import RegisteredTrajectory, read_registration
 
 KINDS = ("camera", "depth", "lidar")
@@ -351,9 +351,6 @@ def _extrinsic(st: _Stream) -> np.ndarray:
 
 
 def _points(channels: dict[str, np.ndarray], has_range: bool) -> np.ndarray:
-    """(N, 4): X, Y, Z and range (NaN: no return)."""
-    xyz = np.stack([channels[c].astype(np.float64) for c in "XYZ"], axis=-1)
-    hit = np.isfinite(xyz).all(axis=-1)
-    rng = channels["range"].astype(np.float64) if has_range else np.linalg.norm(np.where(hit[:, None], xyz, 0), axis=-1)
-    rng = np.where(hit & np.isfinite(rng), rng, np.nan)
-    return np.concatenate([xyz, rng[:, None]], axis=-1)
+    """(N, 4): X, Y, Z and range (NaN: no return), from a sweep's channels (``truth.lidar_rows``)."""
+    xyz = np.stack([channels[c] for c in "XYZ"], axis=-1)
+    return lidar_rows(xyz, channels["range"] if has_range else None)

@@ -128,6 +128,18 @@ class GroundTruth(abc.ABC):
         """Per render id, its ground truth in a few words (``evaluation.json``'s ``ground_truth``)."""
 
 
+def lidar_rows(xyz_m: np.ndarray, range_m: np.ndarray | None = None) -> np.ndarray:
+    """A sweep's points ``(..., 3)`` (sensor frame) and ranges ``(...)`` (None: the points' norms) as the LiDAR
+    pairs' rows ``(N, 4)``: X, Y, Z and range, the range NaN where there is no return (a non-finite point or
+    range)."""
+    xyz = np.asarray(xyz_m, np.float64).reshape(-1, 3)
+    hit = np.isfinite(xyz).all(axis=-1)
+    rng = (np.linalg.norm(np.where(hit[:, None], xyz, 0), axis=-1) if range_m is None
+           else np.asarray(range_m, np.float64).reshape(-1))
+    rng = np.where(hit & np.isfinite(rng), rng, np.nan)
+    return np.concatenate([xyz, rng[:, None]], axis=-1)
+
+
 def truth_for(ev: Evaluation) -> GroundTruth:
     """The ground truth of the renders: ``RecordingTruth`` for recording-mode renders, else ``OracleTruth``."""
     modes = {r.mode for r in ev.renders}
