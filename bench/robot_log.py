@@ -90,6 +90,11 @@ def main() -> None:
     ap.add_argument("--workspace", type=Path, default=None, help="default: a temporary workspace")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default="auto")
+    ap.add_argument("--sensors", default=None, metavar="A,B",
+                    help="render and score only these recorded streams (e.g. left,lidar: the SLAM camera and the "
+                         "LiDAR), on both the recording's and the twin's side; default: the size's (all)")
+    ap.add_argument("--render-stride", type=int, default=None, metavar="K",
+                    help="render every K-th recorded frame of each stream (default: the size's)")
     args = ap.parse_args()
     paper = load_paper()
     size = args.size
@@ -101,6 +106,21 @@ def main() -> None:
         paper.RECORDING["quick"] = {**paper.RECORDING["tiny"], "render": (
             "tiny", ["image_scale=1.0", "lidar_azimuth_scale=1.0", "sensors=[frontleft,left,lidar]", "tick_stride=7",
                      "max_frames=null"])}
+    if args.sensors is not None or args.render_stride is not None:
+        preset, overrides = paper.RECORDING[size]["render"]
+        extra = []
+        if args.sensors is not None:
+            names = [n.strip() for n in args.sensors.split(",") if n.strip()]
+            if not names:
+                ap.error("--sensors: expected names separated by commas, e.g. left,lidar")
+            extra.append(f"sensors=[{','.join(names)}]")
+        if args.render_stride is not None:
+            if args.render_stride < 1:
+                ap.error(f"--render-stride: expected an integer >= 1, got {args.render_stride}")
+            extra.append(f"tick_stride={args.render_stride}")
+        keys = {e.split("=", 1)[0] for e in extra}
+        paper.RECORDING[size] = {**paper.RECORDING[size], "render": (
+            preset, [o for o in overrides if o.split("=", 1)[0] not in keys] + extra)}
     tmp = None
     if args.workspace is None:
         tmp = tempfile.TemporaryDirectory(prefix="nsim-bench-robot-log-")

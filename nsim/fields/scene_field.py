@@ -44,6 +44,8 @@ class SceneFieldConfig:
     color_hidden_layers: int = param(2, ge=0, le=8)
     sh_degree: int = param(4, ge=1, le=4)
     appearance_dim: int = param(32, ge=0, le=256, help="per-image appearance embedding (NeRF-W); 0 disables")
+    appearance_init_std: float = param(1.0, ge=0.0, le=10.0, help="the embeddings' initial spread (normal, this "
+                                       "standard deviation); small: images start alike and part only where the data asks")
     contract: bool = param(True, help="mip-NeRF 360 contraction beyond the scene box; false: the box fills the grid")
     backend: str = param("auto", choices=BACKENDS, help="hash encoding: torch, tcnn (CUDA) or auto")
     compile_indices: bool = param(False, help="torch.compile the hash grid's corner rows and weights (all fields): "
@@ -109,7 +111,7 @@ class SceneField(nn.Module):
         if cfg.appearance_dim > 0:
             self.appearance = nn.Embedding(max(1, n_images), cfg.appearance_dim)
             with torch.no_grad():
-                self.appearance.weight.normal_(0.0, 1.0, generator=generator)
+                self.appearance.weight.normal_(0.0, cfg.appearance_init_std, generator=generator)
 
     def density(self, x_world: Tensor) -> tuple[Tensor, Tensor]:
         """``x_world (N, 3)`` -> ``sigma (N,)`` (1/m) and geometry features ``(N, geo_feat_dim)``."""

@@ -66,3 +66,13 @@ def test_proposal_field_gradients_flow():
     assert sigma.shape == (50,)
     sigma.sum().backward()
     assert p.encoding.table.grad is not None and p.encoding.table.grad.abs().sum() > 0
+
+
+def test_appearance_init_spread_follows_the_config():
+    # 64 images x 8 dims: the table's standard deviation is the configured one (to sampling error)
+    for std in (1.0, 0.01):
+        cfg = SceneFieldConfig(**{**SMALL.__dict__, "appearance_dim": 8, "appearance_init_std": std})
+        table = SceneField(cfg, AABB, n_images=64, generator=torch.Generator().manual_seed(0)).appearance.weight
+        assert abs(float(table.std()) / std - 1.0) < 0.15
+    zero = SceneFieldConfig(**{**SMALL.__dict__, "appearance_init_std": 0.0})
+    assert (SceneField(zero, AABB, n_images=3).appearance.weight == 0).all()
