@@ -2,6 +2,7 @@
 rendered and scored, against the same sensors scored against the test room's oracle.
 
     python bench/robot_log.py [--quick] [--size tiny|small|default] [--workspace DIR] [--seed N] [--device auto]
+                              [--sensors left,lidar] [--render-stride K]
 
 The chain is ``pipelines/paper.py``'s ``--recording`` path (``spot_run`` then ``run_recording``): robot-lab's
 capture and scene and the Spot run (simulate configs/scenarios/spot_run.json), the realistic robot log of that run
@@ -22,6 +23,10 @@ Only robot-lab is built (the other rooms and the people serve only the oracle pi
 quick run's steps summed to about 9 min from an empty workspace on 2 cores shared with other jobs (load 4):
 the recording render 3.2-4.2 min, the twin 2.1 min, register-log 0.6 min, the rest under 2 min (a temporary one unless ``--workspace``). SLAM is n/a at ``--quick``: three frames of
 the left camera 1.4 s apart, SfM registers none (on either side).
+
+``--sensors`` renders and scores only the named streams on both sides (``left,lidar``: the SLAM camera and the
+LiDAR, for the SLAM row at ``--size default`` without the other four cameras' hour of rendering); ``--render-stride K``
+renders every K-th recorded frame of each stream instead of the size's choice.
 
 Times are wall seconds; ``peak_rss_gb`` is the peak resident memory of this process and of its children
 (``resource.getrusage``). The last line is one JSON object: ``register_err_m, register_err_deg, clock_err_s,
