@@ -136,7 +136,7 @@ class OracleTruth(GroundTruth):
         if not r.humans:
             return None
         from nsim.io.npz import read_npz
-        from nsim.rendering.people import HumanSet
+        from nsim.rendering.people import HumanSet, default_checkpoint
         from nsim.synth.actor import Actor
         from nsim.synth.oracle import PlacedActor
 
@@ -149,7 +149,7 @@ class OracleTruth(GroundTruth):
         humans = list(r.humans)
         drew = r.manifest.get("summary", {}).get("people_checkpoints")  # what the render chose (person_checkpoints)
         n = int(np.asarray(arrays["height_m"]).shape[0])
-        chosen = [humans.index(h) for h in drew] if drew else [k % len(humans) for k in range(n)]
+        chosen = [humans.index(h) for h in drew] if drew else [default_checkpoint(k, len(humans)) for k in range(n)]
         bodies: dict[int, Any] = {}
 
         def at(tick: int) -> list:

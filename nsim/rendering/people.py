@@ -31,6 +31,11 @@ from nsim.errors import InputError, NsimError
 log = logging.getLogger(__name__)
 
 
+def default_checkpoint(k: int, n_models: int) -> int:
+    """The checkpoint that draws person ``k`` when no scenario names one: ``k mod M``."""
+    return k % n_models
+
+
 def person_checkpoints(appearance, human_ids, find, source: str = "trajectory") -> list[int]:
     """Which of a render's human checkpoints draws each person: ``(P,)`` indices into ``human_ids``.
 
@@ -55,7 +60,7 @@ def person_checkpoints(appearance, human_ids, find, source: str = "trajectory") 
         if hid is None:
             if name:
                 unknown.append(f"humans[{k}] {name!r}")
-            out.append(k % len(ids))
+            out.append(default_checkpoint(k, len(ids)))
             continue
         if hid not in ids:
             raise InputError(f"{source}: humans[{k}].appearance {name!r} is human checkpoint {hid[:12]}, which is "
@@ -91,8 +96,7 @@ class HumanSet:
 
     def model_index(self, k: int) -> int:
         """The checkpoint (index into the render's human checkpoints) that draws person ``k``."""
-        n = len(self.models)
-        return self.person_model[k] if self.person_model is not None else k % n
+        return self.person_model[k] if self.person_model is not None else default_checkpoint(k, len(self.models))
 
     def _loop(self, motion: str, height: float):
         from nsim.human.gait import DEFAULT_CLIPS, default_clip

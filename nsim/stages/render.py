@@ -191,8 +191,11 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig, person_model=None) -> str:
+    from nsim.rendering.people import default_checkpoint
+
     extra = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
-    if person_model is not None and person_model != [k % len(inputs.humans) for k in range(len(person_model))]:
+    if person_model is not None and person_model != [default_checkpoint(k, len(inputs.humans))
+                                                     for k in range(len(person_model))]:
         extra["people"] = person_model  # the scenario names checkpoints (refs can move: the resolved choice)
     if cfg.method == "baked" and inputs.baked is None:  # baked here: with BakeConfig()'s settings
         from nsim.config import to_dict
