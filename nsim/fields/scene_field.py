@@ -124,15 +124,21 @@ class SceneField(nn.Module):
                          mean_over: Tensor | None = None) -> Tensor | None:
         """Appearance embeddings ``(n, appearance_dim)`` for the colour MLP (None when disabled).
 
-        ``image_index (n,)`` picks each ray's own image; otherwise ``appearance`` decides:
-        ``"mean"`` (over the images selected by ``mean_over``, indices or a mask; default all), an image index, ``"zero"``,
-        or an explicit vector ``(appearance_dim,)``.
+        ``image_index (n,)`` picks each ray's own image (-1: the mean code, as ``"mean"``: a training ray dropped
+        to the mean, ``optim.appearance_mean_share``); otherwise ``appearance`` decides: ``"mean"`` (over the
+        images selected by ``mean_over``, indices or a mask; default all), an image index, ``"zero"``, or an
+        explicit vector ``(appearance_dim,)``.
         """
         if self.appearance is None:
             return None
-        if image_index is not None:
-            return self.appearance(image_index)
         table = self.appearance.weight
+        if image_index is not None:
+            dropped = image_index < 0
+            codes = self.appearance(image_index.clamp(min=0))
+            if not bool(dropped.any()):
+                return codes
+            mean = (table if mean_over is None else table[mean_over]).mean(0)
+            return torch.where(dropped[:, None], mean.to(codes), codes)
         if isinstance(appearance, Tensor):
             code = appearance.to(table)
         elif appearance == "mean":

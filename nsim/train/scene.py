@@ -114,6 +114,11 @@ class OptimConfig:
     proposal_update_every: int = param(5, ge=1, help="train the proposal fields every N steps (after the warm-up)")
     proposal_warmup_steps: int = param(1000, ge=0, help="steps over which the update interval grows from 1 to N")
     pose_refinement: bool = param(False, help="optimise a per-image SE(3) correction (NeRF--)")
+    appearance_mean_share: float = param(0.0, ge=0.0, lt=1.0, help="fraction of each batch's rays rendered with "
+                                         "the training images' mean appearance code instead of their own "
+                                         "(appearance dropout): the colour MLP then learns what the mean code "
+                                         "draws, the images' average look, which is how a held-out view is "
+                                         "rendered and scored (the mean-embedding protocol)")
     mixed_precision: bool = True
     num_threads: int = param(2, ge=0, le=256)
     batch_threads: int = param(1, ge=1, le=64, help="split each batch into this many parts whose forward and "
@@ -426,6 +431,11 @@ class SceneTrainer(ResumableTrainer):
         target = self.images[img, v, u].float() / 255.0
         dirs_cam = self._pixel_dirs(img, v, u)
         rays = self._rays(dirs_cam, img)
+        share = self.cfg.optim.appearance_mean_share
+        if share > 0.0:  # appearance dropout: these rays draw with the mean code (image_index -1)
+            ga = torch.Generator().manual_seed(_step_seed(self.seed, step, "appearance"))
+            dropped = (torch.rand(len(img), generator=ga) < share).to(img.device)
+            rays = replace(rays, image_index=torch.where(dropped, -1, rays.image_index))
         depth = None
         if self.depth_z is not None:
             depth = z_depth_to_range(self.depth_z[img, v, u].float(), dirs_cam[:, 2])

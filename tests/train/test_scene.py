@@ -71,6 +71,34 @@ def test_batch_is_a_pure_function_of_seed_and_step(tiny_data):
     assert ra.image_index is not None and set(ra.image_index.tolist()) <= set(a.train_ids.tolist())
 
 
+def test_appearance_mean_share_drops_that_share_of_rays_to_the_mean_code(tiny_data):
+    plain = SceneTrainer(tiny_data, micro_cfg(optim={"rays_per_batch": 4096}), seed=3)
+    dropout = SceneTrainer(tiny_data, micro_cfg(optim={"appearance_mean_share": 0.25, "rays_per_batch": 4096}), seed=3)
+    rp, tp, _ = plain.batch(5)
+    rd, td, _ = dropout.batch(5)
+    # the same pixels and rays; only the appearance index of about a quarter of them is -1 (the mean code)
+    assert torch.equal(rp.dirs, rd.dirs) and torch.equal(tp, td) and len(rd.image_index) == 4096
+    dropped = rd.image_index < 0
+    assert 0.22 < dropped.float().mean().item() < 0.28
+    assert (rd.image_index[dropped] == -1).all()
+    again, _, _ = SceneTrainer(tiny_data, micro_cfg(optim={"appearance_mean_share": 0.25, "rays_per_batch": 4096}),
+                               seed=3).batch(5)
+    assert torch.equal(again.image_index, rd.image_index)  # seeded by (seed, step)
+    assert not (plain.batch(6)[0].image_index < 0).any()
+    # the dropped rays draw with the training images' mean code, and its gradient reaches every training code
+    model = dropout.model
+    codes = model.field.appearance_codes(rd.image_index, len(rd.image_index), "mean", model.train_mask)
+    mean = model.field.appearance.weight[model.train_mask].mean(0)
+    torch.testing.assert_close(codes[dropped], mean.expand(int(dropped.sum()), -1))
+    kept = ~dropped
+    torch.testing.assert_close(codes[kept], model.field.appearance.weight[rd.image_index[kept]])
+    codes[dropped].sum().backward()
+    grad = model.field.appearance.weight.grad
+    assert (grad[model.train_mask].abs().sum(-1) > 0).all() and (grad[~model.train_mask] == 0).all()
+    with pytest.raises(Exception, match="appearance_mean_share"):
+        micro_cfg(optim={"appearance_mean_share": 1.0})
+
+
 def _state(trainer):
     return {k: v.clone() for k, v in trainer.model.state_dict().items()}
 
