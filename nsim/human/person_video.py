@@ -28,7 +28,7 @@ import numpy as np
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.human.fit import FitConfig, ImageLandmarks, PoseFit, estimate_body, fit_poses
-from nsim.human.landmarks import MASK_THRESHOLD, Observations
+from nsim.human.landmarks import TRAINING_MASK_THRESHOLD, Observations, person_training_mask
 from nsim.human.monocular import place_landmarks, static_camera
 
 REFERENCE_WIDTH_PX = 480
@@ -55,6 +55,8 @@ class PersonVideoConfig:
     fit: the skeleton fit's weights.
     camera: ``CAMERA_MODES``: static, moving (its path found by SfM with the person masked out), or
         auto (moving when the background moves between frames).
+    mask_threshold: the person's probability at which a pixel joins its training masks
+        (``nsim.human.landmarks.person_training_mask``).
     """
 
     hfov_deg: float | None = None
@@ -65,8 +67,11 @@ class PersonVideoConfig:
     sigma_px: float = 4.0
     fit: FitConfig = field(default_factory=FitConfig)
     camera: str = "auto"
+    mask_threshold: float = TRAINING_MASK_THRESHOLD
 
     def __post_init__(self) -> None:
+        if not (0.0 < self.mask_threshold < 1.0):
+            raise ValueError(f"PersonVideoConfig.mask_threshold: must be in (0, 1), got {self.mask_threshold!r}")
         if self.camera not in CAMERA_MODES:
             raise ValueError(f"PersonVideoConfig.camera: expected one of {CAMERA_MODES}, got {self.camera!r}")
         if self.hfov_deg is not None and not (10.0 <= self.hfov_deg <= 170.0):
@@ -212,7 +217,7 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
         poses = fit_poses(lm, body, w, frame_index=frames, cfg=cfg.fit, fps=fps, image=image)
     except ValueError as err:
         raise InputError(f"{source}: cannot fit a skeleton to the person ({err})") from None
-    masks = obs.person_masks[frames] >= MASK_THRESHOLD
+    masks = np.stack([person_training_mask(obs.person_masks[f], obs.image_uv_px[f], cfg.mask_threshold) for f in frames])
     return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
                      tuple(dropped), float(fps))
 

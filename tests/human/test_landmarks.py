@@ -9,11 +9,14 @@ import pytest
 
 from nsim.errors import InputError
 from nsim.human.landmarks import (
+    LANDMARK_BONES,
     LANDMARK_NAMES,
+    TRAINING_MASK_THRESHOLD,
     FrameObservation,
     MediaPipePoseDetector,
     observe,
     other_people,
+    person_training_mask,
 )
 
 
@@ -117,3 +120,42 @@ def test_mediapipe_finds_the_test_actor(tmp_path):
     assert np.median(err) < 12.0, err
     # MediaPipe's body coordinates are in the camera's axes, y down: the nose above the hips
     assert (obs.body_m[:, 0, 1] < obs.body_m[:, 23, 1]).all()
+
+
+def _stick_figure(h: int = 60, w: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A person's probabilities: a body column (0.95) with a soft halo (0.6) around it, a skirt attached to it
+    (0.8), a detached blob beside it (0.9); its landmarks down the body's axis. Returns (prob, uv, body)."""
+    prob = np.zeros((h, w), np.float32)
+    prob[8:52, 14:26] = 0.6  # halo
+    body = np.zeros((h, w), bool)
+    body[10:50, 16:24] = True
+    prob[body] = 0.95
+    prob[30:40, 12:16] = 0.8  # the skirt: attached on the left
+    prob[5:15, 32:38] = 0.9  # background the detector took for the person
+    uv = np.stack([np.full(33, 20.0), np.linspace(12.0, 48.0, 33)], -1)  # (u, v): the body's axis
+    return prob, uv, body
+
+
+def test_training_mask_drops_the_halo_and_detached_blobs_and_keeps_what_is_attached():
+    prob, uv, body = _stick_figure()
+    mask = person_training_mask(prob, uv)
+    expected = body.copy()
+    expected[30:40, 12:16] = True
+    np.testing.assert_array_equal(mask, expected)
+    # a lower threshold takes the halo too; no skeleton in the frame keeps every blob at the threshold
+    assert person_training_mask(prob, uv, 0.5).sum() == (prob[:, :30] >= 0.5).sum()
+    np.testing.assert_array_equal(person_training_mask(prob, np.full((33, 2), np.nan)), prob >= TRAINING_MASK_THRESHOLD)
+    # a skeleton beside the body (on the blob) keeps the blob instead
+    blob = person_training_mask(prob, np.stack([np.full(33, 35.0), np.linspace(6.0, 13.0, 33)], -1))
+    np.testing.assert_array_equal(blob, (prob >= 0.7) & (np.arange(40) >= 30)[None, :])
+
+
+def test_training_mask_refuses_bad_input():
+    prob, uv, _ = _stick_figure()
+    with pytest.raises(ValueError, match="expected an"):
+        person_training_mask(prob[None], uv)
+    with pytest.raises(ValueError, match="landmarks"):
+        person_training_mask(prob, uv[:10])
+    with pytest.raises(ValueError, match="threshold"):
+        person_training_mask(prob, uv, 1.0)
+    assert all(a in LANDMARK_NAMES and b in LANDMARK_NAMES for a, b in LANDMARK_BONES)

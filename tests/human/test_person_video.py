@@ -64,6 +64,12 @@ def test_fit_person_recovers_skeleton_and_camera(tmp_path):
     assert z_err < 0.08, f"joint heights off by {z_err:.3f} m on average"
     assert fit.poses.body.height_m == pytest.approx(1.75, abs=0.05)
     assert fit.masks.shape == (obs.num_frames, 360, 480) and fit.masks.dtype == bool
+    # the training masks: the person's pixels at the threshold, in the blob its skeleton crosses
+    assert fit.masks[:, 100:300, 200:260].all() and fit.masks.sum() == obs.num_frames * 200 * 60
+    halo = _replace(obs, person_masks=np.where(obs.person_masks > 0, obs.person_masks, 0.6).astype(np.float32))
+    assert (fit_person(halo, FPS, PersonVideoConfig(hfov_deg=70.0)).masks == fit.masks).all()  # 0.6: below 0.7
+    with pytest.raises(ValueError, match="mask_threshold"):
+        PersonVideoConfig(mask_threshold=1.0)
     # the poses in the human data format, and the walk as a BVH the reader takes back
     poses = fit.human_poses()
     np.testing.assert_allclose(poses.joint_positions_m(), fit.poses.joint_positions_m, atol=1e-9)
