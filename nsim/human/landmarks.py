@@ -126,34 +126,68 @@ class Observations:
         return int(self.found.shape[0])
 
 
-def other_people(person_mask: np.ndarray, people_mask: np.ndarray | None,
-                 min_fraction: float = OTHER_PERSON_MIN_FRACTION) -> int:
-    """How many people besides the tracked one a frame shows.
+def other_people_blobs(person_mask: np.ndarray, people_mask: np.ndarray | None,
+                       min_fraction: float = OTHER_PERSON_MIN_FRACTION) -> list[np.ndarray]:
+    """The blobs of ``people_mask`` that count as other people: ``(H, W)`` bool each.
 
-    person_mask: (H, W) the tracked person's probabilities; people_mask: (H, W) everyone's (None: 0).
+    person_mask: (H, W) the tracked person's probabilities; people_mask: (H, W) everyone's (None: none).
     Blobs of ``people_mask`` (at ``MASK_THRESHOLD``) that do not touch the tracked person's mask
     (grown by 2 % of the frame's diagonal) and cover at least ``min_fraction`` of its area count.
     """
     import cv2
 
     if people_mask is None:
-        return 0
+        return []
     person = np.asarray(person_mask) >= MASK_THRESHOLD
     people = np.asarray(people_mask) >= MASK_THRESHOLD
     if person.shape != people.shape or person.ndim != 2:
         raise ValueError(f"other_people: expected two (H, W) masks of one size, got {person.shape}, {people.shape}")
     area = int(person.sum())
     if area == 0:
-        return 0
+        return []
     grow = max(1, int(round(0.02 * np.hypot(*person.shape))))
     near = cv2.dilate(person.astype(np.uint8), np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)) > 0
     n, labels, stats, _ = cv2.connectedComponentsWithStats(people.astype(np.uint8), connectivity=8)
-    count = 0
+    blobs = []
     for k in range(1, n):
         blob = labels == k
         if stats[k, cv2.CC_STAT_AREA] >= min_fraction * area and not (blob & near).any():
-            count += 1
-    return count
+            blobs.append(blob)
+    return blobs
+
+
+def other_people(person_mask: np.ndarray, people_mask: np.ndarray | None,
+                 min_fraction: float = OTHER_PERSON_MIN_FRACTION) -> int:
+    """How many people besides the tracked one a frame shows: ``len(other_people_blobs(...))``."""
+    return len(other_people_blobs(person_mask, people_mask, min_fraction))
+
+
+CONFIRM_MIN_LANDMARKS = 8
+"""A blob is a person when at least this many of the body found in its crop lie on it, seen (visibility >= 0.5)."""
+
+
+def confirmed_person(rgb: np.ndarray, blob: np.ndarray, find_body, pad: float = 0.25) -> bool:
+    """Whether a blob a segmenter marked as a person holds one: ``find_body`` (an image -> ``(L, 3)`` pixel u, v,
+    visibility, or None) is run on the blob's bounding box grown by ``pad`` of its size on each side, and at least
+    ``CONFIRM_MIN_LANDMARKS`` seen landmarks must fall on the blob (grown by a tenth of its size)."""
+    import cv2
+
+    ys, xs = np.nonzero(blob)
+    if ys.size == 0:
+        return False
+    h, w = blob.shape
+    by, bx = ys.max() - ys.min() + 1, xs.max() - xs.min() + 1
+    y0, y1 = max(0, int(ys.min() - pad * by)), min(h, int(ys.max() + pad * by) + 1)
+    x0, x1 = max(0, int(xs.min() - pad * bx)), min(w, int(xs.max() + pad * bx) + 1)
+    body = find_body(rgb[y0:y1, x0:x1])
+    if body is None:
+        return False
+    g = max(1, int(round(0.1 * max(by, bx))))
+    grown = cv2.dilate(blob.astype(np.uint8), np.ones((2 * g + 1, 2 * g + 1), np.uint8)) > 0
+    u = np.round(body[:, 0]).astype(int) + x0
+    v = np.round(body[:, 1]).astype(int) + y0
+    seen = (body[:, 2] >= 0.5) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return int(grown[v[seen], u[seen]].sum()) >= CONFIRM_MIN_LANDMARKS
 
 
 def person_training_mask(person_mask: np.ndarray, image_uv_px: np.ndarray,
@@ -245,6 +279,11 @@ class MediaPipePoseDetector:
 
     Tracks one person from frame to frame (MediaPipe's video mode). min_detection_confidence,
     min_tracking_confidence: MediaPipe's thresholds (0.5 each, its defaults).
+
+    Everyone else in the frame comes from Selfie Segmentation, which also marks things that are not people
+    (on the test room's actor video, a brown textured box in 9 of 60 frames at 480x360). A blob it marks away
+    from the tracked person (``other_people``'s rule) stays in ``people_mask`` only when BlazePose, run on the
+    blob's own crop (``confirmed_person``), finds a body there; the others are cleared.
     """
 
     def __init__(self, min_detection_confidence: float = 0.5, min_tracking_confidence: float = 0.5,
@@ -255,6 +294,9 @@ class MediaPipePoseDetector:
                                             min_detection_confidence=min_detection_confidence,
                                             min_tracking_confidence=min_tracking_confidence)
         self._people = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=0) if find_others else None
+        self._check = (mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=False,
+                                              min_detection_confidence=min_detection_confidence)
+                       if find_others else None)
 
     def __call__(self, rgb: np.ndarray) -> FrameObservation | None:
         rgb = np.ascontiguousarray(rgb)
@@ -271,12 +313,27 @@ class MediaPipePoseDetector:
         if self._people is not None:
             seg = self._people.process(rgb).segmentation_mask
             people = None if seg is None else np.asarray(seg, dtype=np.float32)
+            if people is not None:
+                for blob in other_people_blobs(mask, people):
+                    if not confirmed_person(rgb, blob, self._find_body):
+                        people = np.where(blob, 0.0, people).astype(np.float32)
         return FrameObservation(uv, world, np.clip(img[:, 2], 0.0, 1.0), mask, people)
+
+    def _find_body(self, rgb: np.ndarray) -> np.ndarray | None:
+        """BlazePose on one image, on its own (no tracking): ``(L, 3)`` pixel u, v and visibility, or None."""
+        res = self._check.process(np.ascontiguousarray(rgb))
+        if res.pose_landmarks is None:
+            return None
+        h, w = rgb.shape[:2]
+        img = np.array([(p.x, p.y, p.visibility) for p in res.pose_landmarks.landmark], dtype=np.float64)
+        img[:, :2] = img[:, :2] * np.array([w, h]) - 0.5
+        return img
 
     def close(self) -> None:
         self._pose.close()
         if self._people is not None:
             self._people.close()
+            self._check.close()
 
     def __enter__(self) -> MediaPipePoseDetector:
         return self
@@ -286,4 +343,4 @@ class MediaPipePoseDetector:
 
 
 __all__ = ["LANDMARK_BONES", "LANDMARK_NAMES", "PEOPLE_EXTRA", "TRAINING_MASK_THRESHOLD", "FrameObservation", "MediaPipePoseDetector", "Observations",
-           "PoseDetector", "observe", "other_people", "person_training_mask"]
+           "PoseDetector", "confirmed_person", "observe", "other_people", "other_people_blobs", "person_training_mask"]

@@ -12,10 +12,12 @@ from nsim.human.landmarks import (
     LANDMARK_BONES,
     LANDMARK_NAMES,
     TRAINING_MASK_THRESHOLD,
+    confirmed_person,
     FrameObservation,
     MediaPipePoseDetector,
     observe,
     other_people,
+    other_people_blobs,
     person_training_mask,
 )
 
@@ -159,3 +161,58 @@ def test_training_mask_refuses_bad_input():
     with pytest.raises(ValueError, match="threshold"):
         person_training_mask(prob, uv, 1.0)
     assert all(a in LANDMARK_NAMES and b in LANDMARK_NAMES for a, b in LANDMARK_BONES)
+
+
+def test_a_segmented_blob_is_a_person_only_where_a_body_is_found_on_it():
+    rgb = np.zeros((100, 120, 3), np.uint8)
+    blob = np.zeros((100, 120), bool)
+    blob[20:60, 40:60] = True  # 40 x 20: its crop grows by 10 px up and down, 5 px left and right
+    crops = []
+
+    def body_at(u, v, vis=0.9):
+        def find(crop):
+            crops.append(crop.shape[:2])
+            return np.column_stack([np.full(33, u), np.full(33, v), np.full(33, vis)])
+        return find
+
+    assert confirmed_person(rgb, blob, body_at(10.0, 20.0))  # crop (x0, y0) = (35, 10): (45, 30) on the blob
+    assert crops[-1] == (60, 30)
+    assert not confirmed_person(rgb, blob, body_at(80.0, 20.0))  # beside it
+    assert not confirmed_person(rgb, blob, body_at(10.0, 20.0, vis=0.2))  # not seen
+    assert not confirmed_person(rgb, blob, lambda crop: None)  # no body at all
+    assert not confirmed_person(rgb, np.zeros_like(blob), body_at(10.0, 20.0))
+
+
+def test_other_people_blobs_are_what_other_people_counts():
+    person = np.zeros((60, 80), np.float32)
+    person[10:50, 5:15] = 1.0
+    people = person.copy()
+    people[10:50, 50:60] = 0.9  # someone else, as big
+    people[5:8, 70:72] = 0.9  # too small to count
+    blobs = other_people_blobs(person, people)
+    assert len(blobs) == 1 == other_people(person, people) and blobs[0].sum() == 400 and blobs[0][30, 55]
+    assert other_people_blobs(person, None) == []
+
+
+@pytest.mark.slow
+def test_mediapipe_confirms_a_second_actor_and_the_frame_still_tracks_the_first(tmp_path):
+    """With ``nsim[people]``: a second copy of the test actor pasted into a frame counts as another person
+    (BlazePose finds a body on the segmenter's blob); the frame as rendered shows nobody else."""
+    pytest.importorskip("mediapipe")
+    from nsim.human.data import HumanData
+    from nsim.synth.actor_capture import ActorCaptureConfig, render_actor_capture
+
+    render_actor_capture(tmp_path / "cap", ActorCaptureConfig(n_frames=2, fps=10.0, width=480, height=360,
+                                                              supersample=1, video=False), seed=0)
+    images, masks, _ = HumanData.load(tmp_path / "cap").read_all()
+    one = images[0]
+    ys, xs = np.nonzero(masks[0])
+    shift = (20 - xs.min()) if xs.min() > 240 else (460 - xs.max())  # to the far side of the frame
+    two = one.copy()
+    two[ys, xs + shift] = one[ys, xs]
+    with MediaPipePoseDetector() as det:
+        alone = det(one)
+    with MediaPipePoseDetector() as det:
+        pair = det(two)
+    assert other_people(alone.person_mask, alone.people_mask) == 0
+    assert other_people(pair.person_mask, pair.people_mask) == 1
