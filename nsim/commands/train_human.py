@@ -30,11 +30,14 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
                                       "(its path by SfM with the person masked out).")
 @click.option("--fps", "images_fps", type=click.FloatRange(0.1, 240.0, min_open=False), default=30.0,
               show_default=True, help="--images: the frames' rate.")
+@click.option("--mask-threshold", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True), default=None,
+              help="--video/--images: the person's mask probability at which a pixel is trained as the person "
+                   "(default 0.7; nsim.human.landmarks.TRAINING_MASK_THRESHOLD).")
 @click.option("--scene", default=None, help="Scene checkpoint to composite over while training (optional).")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Training steps (sets optim.steps=).")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, capture, folder, video, images, fov_deg,
-            camera_height_m, person_height_m, camera_mode, images_fps, scene, steps):
+            camera_height_m, person_height_m, camera_mode, images_fps, mask_threshold, scene, steps):
     """Train a person's NeRF, driven by its skeleton: a human-checkpoint artifact."""
     from nsim.human.person_video import PersonVideoConfig
     from nsim.stages import train_human
@@ -47,11 +50,13 @@ def command(click_ctx, preset, config_file, overrides, force, tag, capture, fold
     person = None
     if video is not None or images is not None:
         cfg_person = PersonVideoConfig(hfov_deg=fov_deg, camera_height_m=camera_height_m,
-                                       body_height_m=person_height_m, camera=camera_mode)
+                                       body_height_m=person_height_m, camera=camera_mode,
+                                       **({} if mask_threshold is None else {"mask_threshold": mask_threshold}))
         person = PersonSource(Path(video or images), kind="video" if video else "images", images_fps=images_fps,
                               person=cfg_person)
-    elif any(x is not None for x in (fov_deg, camera_height_m, person_height_m)):
-        raise click.UsageError("--fov, --camera-height and --person-height go with --video or --images")
+    elif any(x is not None for x in (fov_deg, camera_height_m, person_height_m, mask_threshold)):
+        raise click.UsageError("--fov, --camera-height, --person-height and --mask-threshold go with --video or "
+                               "--images")
     extra = [f"optim.steps={steps}"] if steps is not None else []
     cfg = resolve_config(train_human.Config, "train_human", preset, config_file, [*extra, *overrides])
     ctx = run_context(click_ctx, force)

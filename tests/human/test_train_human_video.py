@@ -103,9 +103,23 @@ def test_video_to_human_checkpoint(tmp_path, scripted, capsys):
     clip = read_bvh(art.file("person.bvh"))
     assert clip.num_frames == 20  # frames 0-19, the longest stretch with the person
     assert not list((ws / "tmp").glob("train_human.*"))
-    # the same video again: the run cache answers
+    # the same video again: the run cache answers; another mask threshold is another artifact
     assert main(args[:-2]) == 0
     assert "cached" in capsys.readouterr().err
+    assert main([*args[:-2], "--mask-threshold", "0.9", "--tag", "human/video-09"]) == 0
+    assert store.resolve("human/video-09") != store.resolve("human/video")
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--video", "walk.mp4", "--mask-threshold", "1.5"], "--mask-threshold"),
+    (["--data", "folder", "--mask-threshold", "0.8"], "--mask-threshold go with --video or --images"),
+])
+def test_mask_threshold_is_checked_before_anything_runs(tmp_path, capsys, extra, message):
+    ws = tmp_path / "ws"
+    code = main(["--workspace", str(ws), "--device", "cpu", "train-human", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err, err
+    assert _artifacts(ws) == 0
 
 
 @pytest.mark.parametrize("case, message", [
