@@ -18,7 +18,7 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    (``eval.json``, ``nsim.train.human``).
 
 ``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
-60 frames, the ``default`` preset. Prints a table; the last line is a JSON object with keys
+60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are null). Prints a table; the last line is a JSON object with keys
 ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render`` (and more).
 """
 
@@ -69,6 +69,7 @@ def main() -> None:
     ap.add_argument("--workspace", type=Path, default=None)
     ap.add_argument("--steps", type=int, default=None)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default 2, 1 with --quick)")
+    ap.add_argument("--fit-only", action="store_true", help="score the masks and the skeleton fit, train nothing")
     args = ap.parse_args()
     from nsim.human.person_video import PersonVideoConfig
     from nsim.train.human_data_video import PersonSource, prepare_person_data
@@ -101,6 +102,13 @@ def main() -> None:
             frame.pop("background_path", None)
         (truth_dir / "transforms.json").write_text(json.dumps(transforms))
         print(f"person fit: {json.dumps(scores)}", flush=True)
+        if args.fit_only:
+            print(json.dumps({"quick": q, "fit_only": True, "camera": report["camera"],
+                              "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
+                              "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
+                              "psnr_box": None, "psnr_box_gt_poses": None, "iou_render": None,
+                              "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s, 1)}}))
+            return
         cfg = load_config(train_human.Config, stage="train_human", preset="tiny" if q else "default",
                           overrides=th_over)
         ctx = dataclasses.replace(ctx, force=True)
