@@ -127,6 +127,18 @@ def test_train_scene_default_is_cpu():
     assert config_digest(default) == config_digest(load_config(Config, stage="train_scene", preset="cpu"))
 
 
+def test_train_scene_photos_is_cpu_with_the_real_capture_changes():
+    import dataclasses
+
+    from nsim.stages.train_scene import Config
+
+    cpu = load_config(Config, stage="train_scene", preset="cpu")
+    photos = load_config(Config, stage="train_scene", preset="photos")
+    assert photos.field.hash_max_resolution == 0 and photos.optim.appearance_mean_share == 0.25
+    assert photos == dataclasses.replace(cpu, field=dataclasses.replace(cpu.field, hash_max_resolution=0),
+                                         optim=dataclasses.replace(cpu.optim, appearance_mean_share=0.25))
+
+
 # ------------------------------------------------------------------------------ settings written once
 
 
