@@ -194,3 +194,22 @@ def test_mpjpe_procrustes_ignores_similarity():
     shifted = true.copy()
     shifted[:, 0] += (0.0, 0.0, 0.24)  # one joint of 24 off by 24 cm: 1 cm mean
     np.testing.assert_allclose(mpjpe_m(shifted, true, procrustes=False), 0.01, atol=1e-12)
+
+
+def test_hidden_but_placed_landmarks_still_guide_the_fit():
+    """MediaPipe places a landmark it calls hidden (visibility 0.1-0.3) close to right: the default
+    ``min_visibility`` (0.1) fits it at its small weight; at 0.3 the left arm is left to the priors."""
+    truth = scaled_body(PERSON)
+    root, quats = _walk(0.6, 30.0)
+    gt, lm, vis = _synthesise(truth, root, quats, noise_m=0.01, occluded=0.0, seed=4)
+    arm = [LANDMARK_NAMES.index(n) for n in ("left_elbow", "left_wrist", "left_pinky", "left_index", "left_thumb")]
+    vis[:, arm] = 0.2
+    body = estimate_body(lm, vis)
+    wrist = JOINT_NAMES.index("left_wrist")
+    errs = {}
+    for mv in (FitConfig().min_visibility, 0.3):
+        fit = fit_poses(lm, body, vis, cfg=FitConfig(min_visibility=mv))
+        s_err = [np.linalg.norm(fit.joint_positions_m[f] - gt[f], axis=-1) for f in range(len(gt))]
+        errs[mv] = float(np.mean([e[wrist] for e in s_err]))
+    assert FitConfig().min_visibility == 0.1
+    assert errs[0.1] < 0.03 and errs[0.3] > 2 * errs[0.1], errs
