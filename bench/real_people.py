@@ -18,7 +18,8 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    (``eval.json``, ``nsim.train.human``).
 
 ``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
-60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are null). Prints a table; the last line is a JSON object with keys
+60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are
+null). Prints a table; the last line is a JSON object with keys
 ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render`` (and more).
 """
 

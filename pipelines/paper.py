@@ -557,11 +557,11 @@ AGREEMENT = (
 #: scene (|p - g - n| / g <= |p - g| / g + |n| / g): ``DEPTH_NOISE_ABSREL_FLOOR``, above the AbsRel of the log's
 #: default depth noise (std 5 mm + 1 % of the depth) at the test room's depths, which is 0.014 on average and at
 #: most 0.016 over Spot's 50 depth views along the room's walk loop (median depth 0.93 m; nearer walls raise it as
-#: 5 mm / d; tests/synth/test_robot_log.py checks both stay below the floor). A scene as good as the default size's (AbsRel 0.022
-#: against the oracle) is otherwise held to a band narrower than the noise (measured +26 %). The LiDAR's median
-#: range error and hit agreement (the log drops 2 % of the returns; -1.3 cm and -0.001 at --quick); SLAM's ATE on
-#: the simulated frames (2.5 mm against the recording, 2.8 mm on the twin at --size default). bench/robot_log.py
-#: prints them.
+#: 5 mm / d; tests/synth/test_robot_log.py checks both stay below the floor). A scene as good as the default
+#: size's (AbsRel 0.022 against the oracle) is otherwise held to a band narrower than the noise (measured +26 %).
+#: The LiDAR's median range error and hit agreement (the log drops 2 % of the returns; -1.3 cm and -0.001 at
+#: --quick); SLAM's ATE on the simulated frames (2.5 mm against the recording, 2.8 mm on the twin at --size
+#: default). bench/robot_log.py prints them.
 DEPTH_NOISE_ABSREL_FLOOR = 0.02
 AGREEMENT_TOLERANCE = {
     ("spot-rgb", "PSNR [dB]"): ("abs", 1.0),
@@ -587,8 +587,8 @@ def tolerance_bound(tol: tuple, oracle: float) -> float:
 def agreement(oracle: dict, recording: dict) -> list[dict[str, Any]]:
     """Per table and metric: the mean over the table's rows against the oracle (the twin render) and against the
     recording, recording minus oracle (None where a side has no number), the tolerance on it
-    (``AGREEMENT_TOLERANCE``: ``(kind, x[, floor])``, None: none stated) and whether the difference is within it (None:
-    nothing to judge)."""
+    (``AGREEMENT_TOLERANCE``: ``(kind, x[, floor])``, None: none stated) and whether the difference is within it
+    (None: nothing to judge)."""
     out = []
     for table, metric, o_col, r_col in AGREEMENT:
         o = _mean(oracle[table], o_col) if o_col and table in oracle else None

@@ -132,13 +132,10 @@ class SceneField(nn.Module):
         if self.appearance is None:
             return None
         table = self.appearance.weight
-        if image_index is not None:
-            dropped = image_index < 0
+        if image_index is not None:  # no host sync on whether any ray was dropped: one select, exact either way
             codes = self.appearance(image_index.clamp(min=0))
-            if not bool(dropped.any()):
-                return codes
             mean = (table if mean_over is None else table[mean_over]).mean(0)
-            return torch.where(dropped[:, None], mean.to(codes), codes)
+            return torch.where((image_index < 0)[:, None], mean.to(codes), codes)
         if isinstance(appearance, Tensor):
             code = appearance.to(table)
         elif appearance == "mean":

@@ -342,5 +342,6 @@ class MediaPipePoseDetector:
         self.close()
 
 
-__all__ = ["LANDMARK_BONES", "LANDMARK_NAMES", "PEOPLE_EXTRA", "TRAINING_MASK_THRESHOLD", "FrameObservation", "MediaPipePoseDetector", "Observations",
-           "PoseDetector", "confirmed_person", "observe", "other_people", "other_people_blobs", "person_training_mask"]
+__all__ = ["LANDMARK_BONES", "LANDMARK_NAMES", "PEOPLE_EXTRA", "TRAINING_MASK_THRESHOLD", "FrameObservation",
+           "MediaPipePoseDetector", "Observations", "PoseDetector", "confirmed_person", "observe", "other_people",
+           "other_people_blobs", "person_training_mask"]

@@ -217,7 +217,8 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
         poses = fit_poses(lm, body, w, frame_index=frames, cfg=cfg.fit, fps=fps, image=image)
     except ValueError as err:
         raise InputError(f"{source}: cannot fit a skeleton to the person ({err})") from None
-    masks = np.stack([person_training_mask(obs.person_masks[f], obs.image_uv_px[f], cfg.mask_threshold) for f in frames])
+    masks = np.stack([person_training_mask(obs.person_masks[f], obs.image_uv_px[f], cfg.mask_threshold)
+                      for f in frames])
     return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
                      tuple(dropped), float(fps))
 
