@@ -19,7 +19,8 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
 
 ``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
 60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are
-null). Prints a table; the last line is a JSON object with keys
+null). ``--mask-threshold`` and ``--min-visibility`` set the person config's mask cut and the fit's
+visibility cut (their defaults otherwise). Prints a table; the last line is a JSON object with keys
 ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render`` (and more).
 """
 
@@ -71,6 +72,10 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=None)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default 2, 1 with --quick)")
     ap.add_argument("--fit-only", action="store_true", help="score the masks and the skeleton fit, train nothing")
+    ap.add_argument("--mask-threshold", type=float, default=None,
+                    help="the person config's mask_threshold (default: TRAINING_MASK_THRESHOLD)")
+    ap.add_argument("--min-visibility", type=float, default=None,
+                    help="the skeleton fit's min_visibility (default: FitConfig's)")
     args = ap.parse_args()
     from nsim.human.person_video import PersonVideoConfig
     from nsim.train.human_data_video import PersonSource, prepare_person_data
@@ -92,7 +97,12 @@ def main() -> None:
         height = float(json.loads((cap.path / "poses.json").read_text())["height_m"])
         t0 = time.perf_counter()
         person_dir = tmp / "person"
-        source = PersonSource(cap.path / "video.mp4", person=PersonVideoConfig(body_height_m=height))
+        person = PersonVideoConfig(body_height_m=height)
+        if args.mask_threshold is not None:
+            person = dataclasses.replace(person, mask_threshold=args.mask_threshold)
+        if args.min_visibility is not None:
+            person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, min_visibility=args.min_visibility))
+        source = PersonSource(cap.path / "video.mp4", person=person)
         report = prepare_person_data(source, person_dir)
         fit_s = time.perf_counter() - t0
         scores = score_fit(person_dir, cap.path)
@@ -104,7 +114,8 @@ def main() -> None:
         (truth_dir / "transforms.json").write_text(json.dumps(transforms))
         print(f"person fit: {json.dumps(scores)}", flush=True)
         if args.fit_only:
-            print(json.dumps({"quick": q, "fit_only": True, "camera": report["camera"],
+            print(json.dumps({"quick": q, "fit_only": True, "mask_threshold": person.mask_threshold,
+                              "min_visibility": person.fit.min_visibility, "camera": report["camera"],
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
                               "psnr_box": None, "psnr_box_gt_poses": None, "iou_render": None,
