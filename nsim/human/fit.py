@@ -321,7 +321,8 @@ class FitConfig:
         still places a landmark it calls hidden (an arm behind the body seen from the side, visibility 0.1-0.3),
         and close to right: on the test room's actor video at 480x360 (``bench/real_people.py --fit-only``) the
         far arm's wrist was 11-25 px from the truth in the side-view frames, and dropping it at 0.3 let the fit
-        put it 84-104 px off; MPJPE 11.55 cm at 0.3, 9.13 at 0.1 (7.92 and 7.43 at 320x240, 30 frames).
+        put it 84-104 px off; MPJPE 11.55 cm at 0.3, 9.13 at 0.1 (7.88 and 7.43 at 320x240, 30 frames;
+        ``--min-visibility V [--quick]``).
     """
 
     smooth_weight: float = 0.5
