@@ -15,7 +15,11 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    split, once with the fitted poses and cameras and once with the true ones (the capture's own
    folder without its background images, so both composite over the frames), and reports each
    model's held-out (novel-pose) PSNR in the person's box and its render's mask IoU
-   (``eval.json``, ``nsim.train.human``).
+   (``eval.json``, ``nsim.train.human``);
+5. with pose refinement on (``refine.lr > 0``, as the preset or ``--set`` says), the refined poses
+   (``poses_refined.json``) are scored as in 3: ``mpjpe_cm`` is then the refined skeleton's (the
+   pipeline's final fit) and ``mpjpe_cm_landmark_fit`` the landmark fit's before it, with both over
+   the trained and the held-out frames and how far refinement moved them under ``pose_refinement``.
 
 ``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
 60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are
@@ -41,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
+from nsim.human.data import POSES_REFINED_FILE  # noqa: E402
 from nsim.stages import capture, train_human  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
@@ -65,6 +70,28 @@ def score_fit(person_dir: Path, capture_dir: Path) -> dict:
                                                                       procrustes=False).mean())}
 
 
+def score_refined(human_dir: Path, person_dir: Path, capture_dir: Path) -> dict:
+    """PA-MPJPE (cm) of a human checkpoint's refined poses (``poses_refined.json``) against the capture's truth,
+    beside the poses it was given, over the trained and the held-out frames; and how far refinement moved them."""
+    from nsim.human.data import HumanData, read_poses
+    from nsim.human.fit import mpjpe_m
+
+    given, truth = HumanData.load(person_dir), HumanData.load(capture_dir)
+    index = [int(Path(p).stem.split("_")[-1]) for p in given.image_paths]
+    true_j = truth.joint_transforms()[index][..., :3, 3]
+    errors = {"given": 100 * mpjpe_m(given.joint_transforms()[..., :3, 3], true_j),
+              "refined": 100 * mpjpe_m(read_poses(human_dir / POSES_REFINED_FILE).joint_positions_m(), true_j)}
+    meta = json.loads((human_dir / "human.json").read_text())
+    out = {}
+    for part, key in (("trained", "frames_trained"), ("held_out", "frames_held_out")):
+        rows = np.asarray(meta[key], dtype=int)
+        if rows.size:
+            out.update({f"mpjpe_cm_{k}_{part}": float(e[rows].mean()) for k, e in errors.items()})
+    out.update({f"mpjpe_cm_{k}": float(e.mean()) for k, e in errors.items()})
+    out["moved"] = json.loads((human_dir / "pose_refinement.json").read_text())
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -76,6 +103,8 @@ def main() -> None:
                     help="the person config's mask_threshold (default: TRAINING_MASK_THRESHOLD)")
     ap.add_argument("--min-visibility", type=float, default=None,
                     help="the skeleton fit's min_visibility (default: FitConfig's)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a train_human config override for both trainings, e.g. refine.lr=0 (repeatable)")
     args = ap.parse_args()
     from nsim.human.person_video import PersonVideoConfig
     from nsim.train.human_data_video import PersonSource, prepare_person_data
@@ -85,7 +114,7 @@ def main() -> None:
     cap_over = ["actor=true", "video=true"] + (["width=320", "height=240", "n_frames=30"] if q
                                                else ["width=480", "height=360", "n_frames=60"])
     steps = args.steps or (150 if q else None)
-    th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else [])
+    th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else []) + args.overrides
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         store = Store(args.workspace or tmp / "ws")
@@ -124,24 +153,38 @@ def main() -> None:
         cfg = load_config(train_human.Config, stage="train_human", preset="tiny" if q else "default",
                           overrides=th_over)
         ctx = dataclasses.replace(ctx, force=True)
-        evals, walls = {}, {}
+        evals, walls, refined = {}, {}, {}
         for name, folder in (("fitted", person_dir), ("truth", truth_dir)):
             t0 = time.perf_counter()
             out = train_human.run(train_human.Inputs(folder=folder), cfg, ctx)
             walls[name] = time.perf_counter() - t0
-            evals[name] = json.loads(store.get(out.human).file("eval.json").read_text())["mean"]
+            art = store.get(out.human)
+            evals[name] = json.loads(art.file("eval.json").read_text())["mean"]
+            if (art.path / POSES_REFINED_FILE).is_file():
+                refined[name] = score_refined(art.path, person_dir if name == "fitted" else truth_dir, cap.path)
     print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s:.0f} s, "
           f"{report['frames_kept']} of {report['frames_in']} frames kept, height {report['height_m']:.2f} m, "
           f"camera height {report['camera_height_m']:.2f} m")
     print(f"mask IoU {scores['mask_iou']:.3f}; MPJPE after Procrustes {scores['mpjpe_cm']:.2f} cm "
           f"(root-relative, no alignment {scores['mpjpe_cm_no_alignment_root_relative']:.2f} cm)")
+    for name, r in refined.items():
+        print(f"{name} poses refined with the NeRF: PA-MPJPE {r['mpjpe_cm_given']:.2f} -> {r['mpjpe_cm_refined']:.2f} cm "
+              f"(trained frames {r.get('mpjpe_cm_given_trained', float('nan')):.2f} -> "
+              f"{r.get('mpjpe_cm_refined_trained', float('nan')):.2f}, held-out "
+              f"{r.get('mpjpe_cm_given_held_out', float('nan')):.2f} -> {r.get('mpjpe_cm_refined_held_out', float('nan')):.2f}); "
+              f"moved {json.dumps(r['moved'])}")
     print(f"{'poses':>8} {'PSNR box':>9} {'render IoU':>11} {'wall s':>7}")
     for name in ("fitted", "truth"):
         m = evals[name]
         print(f"{name:>8} {m.get('psnr_box', float('nan')):9.2f} {m['mask_iou']:11.3f} {walls[name]:7.0f}")
     print(json.dumps({"quick": q, "steps": cfg.optim.steps, "threads": threads, "camera": report["camera"],
                       "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
-                      "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
+                      "mask_iou": round(scores["mask_iou"], 4),
+                      "mpjpe_cm": round(refined["fitted"]["mpjpe_cm_refined"] if "fitted" in refined
+                                        else scores["mpjpe_cm"], 3),
+                      "mpjpe_cm_landmark_fit": round(scores["mpjpe_cm"], 3),
+                      "pose_refinement": {name: {k: (round(v, 3) if isinstance(v, float) else v)
+                                                 for k, v in r.items()} for name, r in refined.items()},
                       "psnr_box": round(evals["fitted"].get("psnr_box", float("nan")), 3),
                       "psnr_box_gt_poses": round(evals["truth"].get("psnr_box", float("nan")), 3),
                       "iou_render": round(evals["fitted"]["mask_iou"], 4),

@@ -58,13 +58,16 @@ from nsim.human.skeleton import (
     REFERENCE_HEIGHT_M,
     Skeleton,
     forward_kinematics,
+    local_rotations_from_global,
     nsim_skeleton,
+    quats_from_matrices,
 )
 from nsim.io import atomic_path
 
 POSES_FORMAT = "nsim-human-poses"
 POSES_VERSION = 1
 POSES_FILE = "poses.json"
+POSES_REFINED_FILE = "poses_refined.json"  # a human checkpoint's refined poses (nsim.train.human.export_human)
 BVH_POSES_FILE = "poses.bvh"
 ROOT_TRANSFORMS_FILE = "root_transforms.json"
 MASKS_DIR = "masks"
@@ -140,6 +143,22 @@ class HumanPoses:
     def joint_positions_m(self) -> np.ndarray:
         """World joint positions ``(F, J, 3)``."""
         return self.joint_transforms()[..., :3, 3]
+
+
+def poses_from_joint_transforms(skeleton: Skeleton, height_m: float, joint_transforms: np.ndarray,
+                                timestamps_s: np.ndarray | None = None,
+                                file_paths: tuple[str | None, ...] | None = None,
+                                meta: dict[str, Any] | None = None) -> HumanPoses:
+    """``HumanPoses`` of joint-to-world transforms ``(F, J, 4, 4)`` of ``skeleton`` (bone lengths as the
+    skeleton's): the root joint's transform as ``root_to_world``, each other joint's rotation relative to
+    its parent's. ``forward_kinematics`` of the result gives the transforms back."""
+    T = np.asarray(joint_transforms, dtype=np.float64)
+    F = T.shape[0]
+    local = local_rotations_from_global(skeleton, T[..., :3, :3])
+    local[:, 0] = np.eye(3)
+    times = np.full(F, np.nan) if timestamps_s is None else timestamps_s
+    paths = (None,) * F if file_paths is None else tuple(file_paths)
+    return HumanPoses(skeleton, height_m, T[:, 0], quats_from_matrices(local), times, paths, meta or {})
 
 
 def skeleton_to_dict(skeleton: Skeleton) -> dict[str, Any]:

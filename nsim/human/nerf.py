@@ -473,7 +473,7 @@ class HumanModel(nn.Module):
         n, S = origins.shape[0], self.cfg.samples_per_ray
         dev = origins.device
         idx = self._index(n, pose_index, dev)
-        boxes = self.posed_box(T)[idx]  # (R, 2, 3)
+        boxes = self.posed_box(T.detach())[idx]  # (R, 2, 3); where to sample, not differentiated
         inv = 1.0 / torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
         ta, tb = (boxes[:, 0] - origins) * inv, (boxes[:, 1] - origins) * inv
         t_in, t_out = torch.minimum(ta, tb).amax(-1), torch.maximum(ta, tb).amin(-1)

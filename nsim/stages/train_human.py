@@ -41,7 +41,8 @@ from nsim.train.human import TrainHumanConfig
 from nsim.train.human_data_video import PERSON_BVH_FILE, PERSON_FIT_FILE, PersonSource, prepare_person_data
 
 STAGE = "train_human"
-VERSION = 2  # 2: held-out comparisons under a label strip (render | ground truth)
+VERSION = 3  # 2: held-out comparisons under a label strip (render | ground truth); 3: frames named after their
+#   images in eval.json, pose refinement (refine.*: poses_refined.json, pose_refinement.json)
 Config = TrainHumanConfig
 
 
@@ -131,7 +132,8 @@ def load_data(root: Path):
     images, masks, backgrounds = hd.read_all()
     return HumanTrainData(images=images, cam_to_world=hd.cam_to_world(), camera=hd.camera(),
                           joint_transforms=hd.joint_transforms(), masks=np.asarray(masks, dtype=bool),
-                          skeleton=hd.skeleton, background=backgrounds)
+                          skeleton=hd.skeleton, background=backgrounds, height_m=hd.poses.height_m,
+                          names=[Path(f).stem for f in hd.image_paths])
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:

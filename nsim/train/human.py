@@ -56,6 +56,7 @@ from torch import Tensor
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
+from nsim.human.refine import PoseRefinement, pose_change
 from nsim.human.skeleton import Skeleton, pose_aabb
 from nsim.io import atomic_path
 from nsim.metrics.image import psnr
@@ -125,12 +126,28 @@ class HumanOutputConfig:
 
 
 @dataclass(frozen=True)
+class HumanRefineConfig:
+    """Pose refinement (``nsim.human.refine``, as NeuMan and HumanNeRF): per-frame joint rotations and a
+    root translation learned with the NeRF by the same losses, from ``start_fraction`` of the steps on,
+    at Adam's rate ``lr`` (decaying with the others; 0: the poses are used as given). The regulariser
+    (weights ``*_weight``, added to the loss) keeps the corrections small and smooth in frame order, which
+    also carries the neighbours' corrections to held-out frames (see ``nsim.human.refine``)."""
+
+    lr: float = param(0.0, ge=0.0, help="Adam's rate for the corrections (radians, metres); 0: off")
+    start_fraction: float = param(0.25, ge=0.0, lt=1.0, help="refine from this share of the steps on")
+    rotation_weight: float = param(1e-3, ge=0.0, help="prior on the joint corrections, per rad^2")
+    translation_weight: float = param(1e-1, ge=0.0, help="prior on the root translation, per m^2")
+    smooth_weight: float = param(1e-1, ge=0.0, help="first differences between consecutive frames' corrections")
+
+
+@dataclass(frozen=True)
 class TrainHumanConfig:
     model: HumanModelConfig = HumanModelConfig()
     optim: HumanOptimConfig = HumanOptimConfig()
     loss: HumanLossConfig = HumanLossConfig()
     data: HumanDataConfig = HumanDataConfig()
     output: HumanOutputConfig = HumanOutputConfig()
+    refine: HumanRefineConfig = HumanRefineConfig()
 
 
 # ====================================================================== data
@@ -143,7 +160,8 @@ class HumanTrainData:
     ``skeleton`` in each frame; masks: (N, H, W) bool, the person's pixels; background: None,
     an RGB colour (3,) in [0, 1], or (N, H, W, 3) uint8 images of what is behind the person;
     names: per-frame labels (default ``frame_00000`` ...). ``digest`` (of all of it) is
-    computed on construction when not given.
+    computed on construction when not given. ``height_m``: the person's height (floor to top of head)
+    as the poses' source gives it, written with refined poses (None: the skeleton's rest extent).
     """
 
     images: np.ndarray
@@ -155,6 +173,7 @@ class HumanTrainData:
     background: np.ndarray | None = None
     names: list[str] | None = None
     digest: str = ""
+    height_m: float | None = None
 
     def __post_init__(self) -> None:
         self.images = np.asarray(self.images)
@@ -292,6 +311,11 @@ class HumanTrainer(ResumableTrainer):
                 groups.append({"params": list(self.model.nonrigid.parameters()), "lr": o.lr_nonrigid, "name": "nonrigid"})
             else:
                 self.model.nonrigid.requires_grad_(False)
+        self.refine = None
+        if cfg.refine.lr > 0:
+            self.refine = PoseRefinement(self.joint_transforms, data.skeleton.parents).to(self.device)
+            groups.append({"params": list(self.refine.parameters()), "lr": cfg.refine.lr, "name": "pose"})
+        self.refine_start = int(round(cfg.refine.start_fraction * o.steps))
         self.base_lr = [g["lr"] for g in groups]
         self.optimizer = torch.optim.Adam(groups, eps=o.adam_eps, fused=self.device.type in ("cpu", "cuda"))
         self.step = 0
@@ -364,12 +388,24 @@ class HumanTrainer(ResumableTrainer):
             out = self.background_model.render(rays, return_samples=True)
         return out.samples, out.background
 
-    def render_rays(self, frames: Tensor, v: Tensor, u: Tensor, generator: torch.Generator | None = None):
+    def refining(self) -> bool:
+        """Whether the poses are being refined at the current step."""
+        return self.refine is not None and self.step >= self.refine_start
+
+    def poses(self) -> Tensor:
+        """Every frame's joint transforms ``(N, J, 4, 4)`` as the model sees them now: the given poses,
+        or the refined ones once refinement has started (differentiable while gradients are on)."""
+        return self.refine() if self.refining() else self.joint_transforms
+
+    def render_rays(self, frames: Tensor, v: Tensor, u: Tensor, generator: torch.Generator | None = None,
+                    poses: Tensor | None = None):
         """Composite of the person over the background for pixels ``(frames, v, u)``: a
-        ``MergedRender`` whose ``alpha[0]`` is the person's visible opacity."""
+        ``MergedRender`` whose ``alpha[0]`` is the person's visible opacity. ``poses``: the frames'
+        joint transforms ``(N, J, 4, 4)`` (default :meth:`poses`)."""
         c2w = self.cam_to_world[frames]
         origins, dirs = rays_from_pixels(self.dirs_cam[v, u], c2w)
-        human = self.model.render_samples(origins, dirs, self.joint_transforms, near=self.cfg.data.near_m,
+        poses = self.poses() if poses is None else poses
+        human = self.model.render_samples(origins, dirs, poses, near=self.cfg.data.near_m,
                                           generator=generator, pose_index=frames)
         if self.background_model is not None:
             scene, scene_bg = self._scene_samples(origins, dirs)
@@ -382,7 +418,7 @@ class HumanTrainer(ResumableTrainer):
         step = self.step
         cfg = self.cfg
         frames, v, u, g = self.batch(step)
-        out = self.render_rays(frames, v, u, generator=g)
+        out = self.render_rays(frames, v, u, generator=g, poses=self.poses())
         target = self.images[frames, v, u].float() / 255.0
         mask = self.masks[frames, v, u].float()
         mse = torch.mean((out.rgb - target) ** 2)
@@ -393,6 +429,11 @@ class HumanTrainer(ResumableTrainer):
             reg = torch.mean((self.model.blend_log_weights - self.blend_init) ** 2)
             loss = loss + cfg.loss.blend_weight * reg
             extra["blend"] = float(reg.detach())
+        if self.refining():
+            r = cfg.refine
+            reg = self.refine.regulariser(r.rotation_weight, r.translation_weight, r.smooth_weight)
+            loss = loss + reg
+            extra["pose_reg"] = float(reg.detach())
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -409,6 +450,21 @@ class HumanTrainer(ResumableTrainer):
         return {"config": config_digest(self.cfg), "data": self.data.digest, "seed": self.seed,
                 "device": self.device.type, "background_model": _module_digest(self.background_model)}
 
+    def _extra_state(self) -> dict[str, Any]:
+        return {"pose_refinement": self.refine.state_dict()} if self.refine is not None else {}
+
+    def _load_extra_state(self, state: dict[str, Any]) -> None:
+        if self.refine is not None:
+            self.refine.load_state_dict(state["pose_refinement"])
+
+    def refined_poses(self) -> np.ndarray | None:
+        """The refined joint transforms ``(N, J, 4, 4)`` float64 of every frame (held-out ones moved by
+        their neighbours only), or None without refinement."""
+        if self.refine is None:
+            return None
+        with torch.no_grad():
+            return self.refine().double().cpu().numpy()
+
     def history_row(self, stats: StepStats) -> dict[str, Any]:
         """The history's row at a logged step: loss, training PSNR and the step's extras."""
         return {"step": self.step, "loss": stats.loss, "psnr_train": stats.psnr, **stats.extra}
@@ -418,6 +474,7 @@ class HumanTrainer(ResumableTrainer):
     def render_view(self, i: int) -> dict[str, np.ndarray]:
         """Frame ``i`` rendered at its camera and pose over its background: rgb (H, W, 3), alpha (H, W)."""
         self.model.eval()
+        poses = self.poses()
         h, w = self.data.size_hw
         vv, uu = torch.meshgrid(torch.arange(h, device=self.device), torch.arange(w, device=self.device), indexing="ij")
         v, u = vv.reshape(-1), uu.reshape(-1)
@@ -425,7 +482,7 @@ class HumanTrainer(ResumableTrainer):
         chunk = self.cfg.output.render_chunk_rays
         rgb, alpha = [], []
         for k in range(0, h * w, chunk):
-            out = self.render_rays(frames[k:k + chunk], v[k:k + chunk], u[k:k + chunk])
+            out = self.render_rays(frames[k:k + chunk], v[k:k + chunk], u[k:k + chunk], poses=poses)
             rgb.append(out.rgb)
             alpha.append(out.alpha[0])
         return {"rgb": torch.cat(rgb).clamp(0, 1).view(h, w, 3).cpu().numpy(),
@@ -548,7 +605,10 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
     ``nsim.human.nerf.load_human_model`` rebuilds the model from), ``turntable.png`` (the rest
     pose from ``output.preview_views`` directions), ``gait.gif`` (one walking cycle),
     ``history.json``, ``eval/<frame>.png`` (render | ground truth) and ``eval.json`` (per
-    held-out view: PSNR in the person's box, mask IoU, the constant-colour baseline). No file
+    held-out view: PSNR in the person's box, mask IoU, the constant-colour baseline); with pose
+    refinement (``refine.lr > 0``) also ``poses_refined.json`` (every frame's refined pose, the
+    ``poses.json`` format, file paths naming the frames) and ``pose_refinement.json`` (how far it moved
+    the trained and the held-out frames' joints, ``nsim.human.refine.pose_change``). No file
     holds a timing, so a rerun on CPU writes the same bytes.
     """
     from nsim.human.nerf import gait_frames, save_human_model, turntable
@@ -585,6 +645,22 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
                                   [f"frame {i} render", "ground truth"]))
         (out_dir / "eval.json").write_text(json.dumps({"views": ev["views"], "mean": ev["mean"]}, indent=1) + "\n")
         summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
+    refined = trainer.refined_poses()
+    if refined is not None:
+        from nsim.human.data import POSES_REFINED_FILE, poses_from_joint_transforms, write_poses
+
+        given = trainer.data.joint_transforms
+        moved = {"trained": pose_change(given[trainer.train_ids], refined[trainer.train_ids])}
+        if len(trainer.eval_ids):
+            moved["held_out"] = pose_change(given[trainer.eval_ids], refined[trainer.eval_ids])
+        names = tuple(trainer.data.names)
+        skeleton = trainer.data.skeleton
+        height = trainer.data.height_m if trainer.data.height_m is not None else skeleton.height_m()
+        write_poses(out_dir / POSES_REFINED_FILE, poses_from_joint_transforms(
+            skeleton, height, refined, file_paths=names, meta={"source": "nsim human NeRF pose refinement",
+                                                               "moved": moved}))
+        (out_dir / "pose_refinement.json").write_text(json.dumps(moved, indent=1) + "\n")
+        summary["pose_refinement"] = {k: {m: round(x, 3) for m, x in v.items()} for k, v in moved.items()}
     result.evaluation = summary
     return summary
 
@@ -594,6 +670,7 @@ __all__ = [
     "HumanLossConfig",
     "HumanOptimConfig",
     "HumanOutputConfig",
+    "HumanRefineConfig",
     "HumanTrainData",
     "HumanTrainResult",
     "HumanTrainer",
