@@ -15,7 +15,8 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    split, once with the fitted poses and cameras and once with the true ones (the capture's own
    folder without its background images, so both composite over the frames), and reports each
    model's held-out (novel-pose) PSNR in the person's box and its render's mask IoU
-   (``eval.json``, ``nsim.train.human``);
+   (``eval.json``, ``nsim.train.human``: against the folder's masks, MediaPipe's for the fitted one),
+   and the same renders' IoU against the capture's true masks (``iou_render_true_masks``);
 5. with pose refinement on (``refine.lr > 0``, as the preset or ``--set`` says), the refined poses
    (``poses_refined.json``) are scored as in 3: ``mpjpe_cm`` is then the refined skeleton's (the
    pipeline's final fit) and ``mpjpe_cm_landmark_fit`` the landmark fit's before it, with both over
@@ -92,6 +93,28 @@ def score_refined(human_dir: Path, person_dir: Path, capture_dir: Path) -> dict:
     return out
 
 
+def render_iou_true_masks(human_dir: Path, folder: Path, capture_dir: Path) -> float:
+    """Mean mask IoU of a human checkpoint's held-out renders (opacity > 0.5, at the folder's cameras and
+    poses: the refined ones when the checkpoint has them) against the capture's *true* masks, where
+    ``eval.json``'s IoU is against the folder's own (for the fitted folder MediaPipe's)."""
+    from nsim.human.data import HumanData, read_poses
+    from nsim.human.nerf import load_human_model
+    from nsim.train.human import mask_iou
+
+    data, truth = HumanData.load(folder), HumanData.load(capture_dir)
+    model = load_human_model(human_dir)
+    poses = (read_poses(human_dir / POSES_REFINED_FILE).joint_transforms()
+             if (human_dir / POSES_REFINED_FILE).is_file() else data.joint_transforms())
+    camera, c2w = data.camera(), data.cam_to_world()
+    held = json.loads((human_dir / "human.json").read_text())["frames_held_out"]
+    ious = []
+    for row in held:
+        k = int(Path(data.image_paths[row]).stem.split("_")[-1])
+        alpha = model.render(camera, c2w[row], poses[row])["alpha"]
+        ious.append(mask_iou(alpha > 0.5, truth.mask(k)))
+    return float(np.mean(ious))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -160,6 +183,7 @@ def main() -> None:
             walls[name] = time.perf_counter() - t0
             art = store.get(out.human)
             evals[name] = json.loads(art.file("eval.json").read_text())["mean"]
+            evals[name]["mask_iou_true_masks"] = render_iou_true_masks(art.path, folder, cap.path)
             if (art.path / POSES_REFINED_FILE).is_file():
                 refined[name] = score_refined(art.path, person_dir if name == "fitted" else truth_dir, cap.path)
     print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s:.0f} s, "
@@ -173,10 +197,11 @@ def main() -> None:
               f"{r.get('mpjpe_cm_refined_trained', float('nan')):.2f}, held-out "
               f"{r.get('mpjpe_cm_given_held_out', float('nan')):.2f} -> {r.get('mpjpe_cm_refined_held_out', float('nan')):.2f}); "
               f"moved {json.dumps(r['moved'])}")
-    print(f"{'poses':>8} {'PSNR box':>9} {'render IoU':>11} {'wall s':>7}")
+    print(f"{'poses':>8} {'PSNR box':>9} {'render IoU':>11} {'IoU true masks':>17} {'wall s':>7}")
     for name in ("fitted", "truth"):
         m = evals[name]
-        print(f"{name:>8} {m.get('psnr_box', float('nan')):9.2f} {m['mask_iou']:11.3f} {walls[name]:7.0f}")
+        print(f"{name:>8} {m.get('psnr_box', float('nan')):9.2f} {m['mask_iou']:11.3f} {m['mask_iou_true_masks']:17.3f} "
+              f"{walls[name]:7.0f}")
     print(json.dumps({"quick": q, "steps": cfg.optim.steps, "threads": threads, "camera": report["camera"],
                       "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                       "mask_iou": round(scores["mask_iou"], 4),
@@ -189,6 +214,8 @@ def main() -> None:
                       "psnr_box_gt_poses": round(evals["truth"].get("psnr_box", float("nan")), 3),
                       "iou_render": round(evals["fitted"]["mask_iou"], 4),
                       "iou_render_gt_poses": round(evals["truth"]["mask_iou"], 4),
+                      "iou_render_true_masks": round(evals["fitted"]["mask_iou_true_masks"], 4),
+                      "iou_render_gt_poses_true_masks": round(evals["truth"]["mask_iou_true_masks"], 4),
                       "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s, 1),
                                        **{f"train_{k}": round(v, 1) for k, v in walls.items()}}}))
 
