@@ -126,6 +126,8 @@ def main() -> None:
                     help="the person config's mask_threshold (default: TRAINING_MASK_THRESHOLD)")
     ap.add_argument("--min-visibility", type=float, default=None,
                     help="the skeleton fit's min_visibility (default: FitConfig's)")
+    ap.add_argument("--fit", dest="fit_overrides", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a skeleton-fit setting (nsim.human.fit.FitConfig field, a number), e.g. smooth_weight=2")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="a train_human config override for both trainings, e.g. refine.lr=0 (repeatable)")
     args = ap.parse_args()
@@ -154,6 +156,12 @@ def main() -> None:
             person = dataclasses.replace(person, mask_threshold=args.mask_threshold)
         if args.min_visibility is not None:
             person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, min_visibility=args.min_visibility))
+        for item in args.fit_overrides:
+            field, _, value = item.partition("=")
+            if field not in {f.name for f in dataclasses.fields(person.fit)}:
+                ap.error(f"--fit {item}: FitConfig has no field {field!r}")
+            kind = type(getattr(person.fit, field))
+            person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, **{field: kind(value)}))
         source = PersonSource(cap.path / "video.mp4", person=person)
         report = prepare_person_data(source, person_dir)
         fit_s = time.perf_counter() - t0
@@ -167,7 +175,8 @@ def main() -> None:
         print(f"person fit: {json.dumps(scores)}", flush=True)
         if args.fit_only:
             print(json.dumps({"quick": q, "fit_only": True, "mask_threshold": person.mask_threshold,
-                              "min_visibility": person.fit.min_visibility, "camera": report["camera"],
+                              "min_visibility": person.fit.min_visibility, "fit": dataclasses.asdict(person.fit),
+                              "camera": report["camera"],
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
                               "psnr_box": None, "psnr_box_gt_poses": None, "iou_render": None,
