@@ -1,7 +1,8 @@
 """A person from a plain video: the test room's actor capture given as ``video.mp4`` only (ground-truth
 poses and masks withheld from the fit, used only to score it).
 
-    PYTHONPATH=. /tmp/s6/mpvenv/bin/python bench/real_people.py [--quick] [--steps N] [--threads 1]
+    PYTHONPATH=. /path/to/people-venv/bin/python bench/real_people.py [--quick] [--steps N] [--threads 1]
+        [--fit-only] [--fit FIELD=VALUE] [--set refine.lr=0.0005]
 
 Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
 
