@@ -13,7 +13,7 @@ and the refined pose is forward kinematics over the given local transforms (so b
 change): ``T'_i0 = (T_i0 + t_i) exp(r_i0)``, ``T'_ij = T'_i,parent L_ij exp(r_ij)`` with
 ``L_ij = T_i,parent^-1 T_ij``. With every correction zero the given poses come back (to float32
 rounding). The corrections are taken relative to their mean over the frames
-(:meth:`PoseRefinement.corrections`): a correction shared by every frame is the canonical body's to
+(:meth:`BodyPoseRefinement.corrections`): a correction shared by every frame is the canonical body's to
 absorb, and left free it lets body and poses drift together.
 
 :func:`regulariser` keeps the corrections small (a Gaussian prior) and smooth in frame order (a
@@ -28,16 +28,16 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from nsim.rendering.rays import se3_exp
+
 
 def axis_angle_to_matrix(v: Tensor) -> Tensor:
-    """Rotation matrices ``(..., 3, 3)`` of axis-angle vectors ``(..., 3)`` (radians), differentiable at 0."""
-    x, y, z = v.unbind(-1)
-    zero = torch.zeros_like(x)
-    skew = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(v.shape[:-1] + (3, 3))
-    return torch.linalg.matrix_exp(skew)
+    """Rotation matrices ``(..., 3, 3)`` of axis-angle vectors ``(..., 3)`` (radians), exact with its gradient
+    at 0: the rotation part of ``nsim.rendering.rays.se3_exp`` (one Rodrigues formula in nsim)."""
+    return se3_exp(torch.cat([torch.zeros_like(v), v], dim=-1))[..., :3, :3]
 
 
-class PoseRefinement(nn.Module):
+class BodyPoseRefinement(nn.Module):
     """Learnable corrections of ``N`` given poses ``joint_transforms (N, J, 4, 4)`` of a skeleton with
     ``parents (J,)`` (the root's ``-1``; every parent before its child). ``forward()`` gives the refined
     ``(N, J, 4, 4)``; the parameters are ``rotation (N, J, 3)`` and ``translation (N, 3)``."""
@@ -48,10 +48,10 @@ class PoseRefinement(nn.Module):
         parents = np.asarray(parents)
         n, J = T.shape[0], T.shape[1]
         if T.shape[-2:] != (4, 4) or T.ndim != 4 or parents.shape != (J,):
-            raise ValueError(f"PoseRefinement: expected joint_transforms (N, J, 4, 4) and parents (J,), got "
+            raise ValueError(f"BodyPoseRefinement: expected joint_transforms (N, J, 4, 4) and parents (J,), got "
                              f"{tuple(T.shape)} and {parents.shape}")
         if parents[0] >= 0 or np.any(parents[1:] < 0) or np.any(parents[1:] >= np.arange(1, J)):
-            raise ValueError("PoseRefinement: joint 0 must be the root and every parent must come before its child")
+            raise ValueError("BodyPoseRefinement: joint 0 must be the root and every parent must come before its child")
         local = T.clone()
         p = torch.tensor(parents[1:].tolist(), dtype=torch.long)
         local[:, 1:] = torch.linalg.inv(T[:, p].double()).float() @ T[:, 1:]
@@ -113,4 +113,4 @@ def pose_change(given: np.ndarray, refined: np.ndarray) -> dict[str, float]:
             "rotation_deg_mean": float(angle.mean()), "rotation_deg_max": float(angle.max())}
 
 
-__all__ = ["PoseRefinement", "axis_angle_to_matrix", "pose_change"]
+__all__ = ["BodyPoseRefinement", "axis_angle_to_matrix", "pose_change"]

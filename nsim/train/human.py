@@ -56,7 +56,7 @@ from torch import Tensor
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
-from nsim.human.refine import PoseRefinement, pose_change
+from nsim.human.refine import BodyPoseRefinement, pose_change
 from nsim.human.skeleton import Skeleton, pose_aabb
 from nsim.io import atomic_path
 from nsim.metrics.image import psnr
@@ -313,7 +313,7 @@ class HumanTrainer(ResumableTrainer):
                 self.model.nonrigid.requires_grad_(False)
         self.refine = None
         if cfg.refine.lr > 0:
-            self.refine = PoseRefinement(self.joint_transforms, data.skeleton.parents).to(self.device)
+            self.refine = BodyPoseRefinement(self.joint_transforms, data.skeleton.parents).to(self.device)
             groups.append({"params": list(self.refine.parameters()), "lr": cfg.refine.lr, "name": "pose"})
         self.refine_start = int(round(cfg.refine.start_fraction * o.steps))
         self.base_lr = [g["lr"] for g in groups]

@@ -8,7 +8,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from nsim.human.data import poses_from_joint_transforms
-from nsim.human.refine import PoseRefinement, axis_angle_to_matrix, pose_change
+from nsim.human.refine import BodyPoseRefinement, axis_angle_to_matrix, pose_change
 from nsim.human.skeleton import forward_kinematics, nsim_skeleton
 
 SKELETON = nsim_skeleton(1.75)
@@ -30,13 +30,13 @@ def test_axis_angle_matches_scipy():
 def test_zero_corrections_give_the_poses_back():
     T = random_poses()
     with torch.no_grad():
-        out = PoseRefinement(torch.tensor(T), SKELETON.parents)().double().numpy()
+        out = BodyPoseRefinement(torch.tensor(T), SKELETON.parents)().double().numpy()
     np.testing.assert_allclose(out, T, atol=2e-6)
 
 
 def test_a_joint_correction_moves_its_descendants_and_keeps_bone_lengths():
     T = random_poses(2)
-    m = PoseRefinement(torch.tensor(T), SKELETON.parents)
+    m = BodyPoseRefinement(torch.tensor(T), SKELETON.parents)
     elbow = SKELETON.index("left_elbow")
     with torch.no_grad():  # frame 1 turned by 0.3 rad, frame 0 by nothing: about their mean, +-0.15
         m.rotation[1, elbow] = torch.tensor([0.0, 0.0, 0.3])  # about the vertical: the forearm swings
@@ -64,7 +64,7 @@ def _ancestors(j: int) -> list[int]:
 
 def test_the_root_translation_shifts_the_whole_body():
     T = random_poses(2)
-    m = PoseRefinement(torch.tensor(T), SKELETON.parents)
+    m = BodyPoseRefinement(torch.tensor(T), SKELETON.parents)
     with torch.no_grad():
         m.translation[0] = torch.tensor([0.0, 0.04, -0.02])  # against frame 1's zero: +-half of it each
         out = m().double().numpy()
@@ -83,7 +83,7 @@ def test_smoothness_carries_the_neighbours_correction_to_a_frame_without_data():
     target = torch.tensor([0.2, -0.1, 0.05])
     ends = {}
     for smooth in (0.0, 1.0):
-        m = PoseRefinement(torch.tensor(T), SKELETON.parents)
+        m = BodyPoseRefinement(torch.tensor(T), SKELETON.parents)
         opt = torch.optim.Adam(m.parameters(), lr=0.01)
         for _ in range(400):
             r = m.corrections()[0][:, 3]
@@ -100,7 +100,7 @@ def test_smoothness_carries_the_neighbours_correction_to_a_frame_without_data():
 def test_a_correction_every_frame_shares_is_no_correction():
     """The canonical body can absorb a correction common to all frames, so only departures from the mean count."""
     T = random_poses(3)
-    m = PoseRefinement(torch.tensor(T), SKELETON.parents)
+    m = BodyPoseRefinement(torch.tensor(T), SKELETON.parents)
     with torch.no_grad():
         m.rotation[:, 5] = torch.tensor([0.3, 0.1, -0.2])
         m.translation[:] = torch.tensor([0.1, 0.0, 0.2])
@@ -111,11 +111,11 @@ def test_a_correction_every_frame_shares_is_no_correction():
 def test_bad_shapes_and_orders_are_refused():
     T = torch.tensor(random_poses(1))
     with pytest.raises(ValueError, match="parents"):
-        PoseRefinement(T, SKELETON.parents[:5])
+        BodyPoseRefinement(T, SKELETON.parents[:5])
     bad = SKELETON.parents.copy()
     bad[3] = 7
     with pytest.raises(ValueError, match="before its child"):
-        PoseRefinement(T, bad)
+        BodyPoseRefinement(T, bad)
     with pytest.raises(ValueError, match="two"):
         pose_change(T.numpy(), T.numpy()[:, :3])
 

@@ -268,13 +268,13 @@ def test_the_losses_lead_a_shifted_pose_back(tiny_trained):
     moved 4 cm sideways is brought back by descending the training losses (image and mask) through
     the refinement's corrections: what refinement does inside its basin (errors within a limb's width;
     larger ones, such as a leg 30 degrees off, get no gradient from where the limb really is)."""
-    from nsim.human.refine import PoseRefinement
+    from nsim.human.refine import BodyPoseRefinement
 
     trainer = tiny_trained.trainer
     for p in trainer.model.parameters():
         p.requires_grad_(False)
     try:
-        refine = PoseRefinement(trainer.joint_transforms, trainer.data.skeleton.parents)
+        refine = BodyPoseRefinement(trainer.joint_transforms, trainer.data.skeleton.parents)
         frame = int(trainer.train_ids[3])
         with torch.no_grad():
             refine.translation[frame] = torch.tensor([0.0, 0.04, 0.0])
