@@ -4,6 +4,7 @@ plain dense twin, files round-trip byte for byte, bad files are one line, people
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -339,3 +340,70 @@ def test_visibility_culling_drops_what_no_camera_sees(baked):
     before, after = render_baked(scene, rays), render_baked(culled, rays)
     torch.testing.assert_close(after.rgb, before.rgb, atol=1e-6, rtol=0)
     torch.testing.assert_close(after.depth, before.depth, atol=1e-5, rtol=0)
+
+
+
+def test_field_samples_colour_the_baked_weights_from_the_field(baked, model):
+    """field_samples = k: the baked march decides the weights (so accumulation and depth are the baked ones),
+    the field the colours: a ray's weight cut into k equal parts, each coloured by the field at its middle
+    quantile. k = 1 against a plain twin (a loop over rays: the point where the dense march's cumulative
+    weight reaches half the ray's, the field's colour there); k = 64 converges to the field's colour at every
+    sample; a LiDAR's rays (colour=False) take no colour and keep the baked geometry."""
+    weights, biases = baked.decoder.arrays()
+    weights[0] = weights[0] * 30.0  # a colour head that shows its features (the untrained one is nearly flat)
+    sharp = ColorDecoder([torch.as_tensor(w) for w in weights], [torch.as_tensor(b) for b in biases], 2)
+    exact = dataclasses.replace(baked, stop_transmittance=0.0, color_skip_weight=0.0, field_color_samples=0,
+                                decoder=sharp)
+    rays = some_rays(150, seed=11)
+    plain = render_chunk(exact, rays)
+    one = render_chunk(dataclasses.replace(exact, field_samples=1).with_field(model.field), rays)
+    torch.testing.assert_close(one.accumulation, plain.accumulation, rtol=0, atol=0)
+    torch.testing.assert_close(one.depth, plain.depth, rtol=0, atol=0)
+    # the plain twin of k = 1
+    _, step_f, _ = steps(exact)
+    twin = torch.zeros(len(rays), 3)
+    for r in range(len(rays)):
+        n_steps = int(math.ceil(float(rays.far[r] - rays.near[r]) / step_f))
+        t0 = rays.near[r] + torch.arange(n_steps, dtype=torch.float32) * step_f
+        t1 = torch.minimum(t0 + step_f, rays.far[r])
+        x = rays.origins[r] + rays.dirs[r] * (0.5 * (t0 + t1))[:, None]
+        brick, local = locate(exact, x)
+        sigma = torch.where(brick >= 0, density_at(exact, brick.clamp(min=0), local), 0.0)
+        w, _ = volume.render_weights(sigma[None], (t1 - t0)[None])
+        w = w[0]
+        acc = float(w.sum())
+        if acc <= volume.EPS:
+            continue
+        cw = torch.cumsum(w, 0)
+        i = int(torch.searchsorted(cw, torch.tensor([0.5 * acc]))[0])
+        t = t0[i] + (0.5 * acc - float(cw[i] - w[i])) / float(w[i]) * (t1[i] - t0[i])
+        with torch.no_grad():
+            geo = model.field.density((rays.origins[r] + rays.dirs[r] * t)[None])[1]
+        twin[r] = acc * sharp(geo.float(), rays.dirs[r][None])[0]
+    torch.testing.assert_close(one.rgb, twin, rtol=0, atol=1e-5)
+    many = render_chunk(dataclasses.replace(exact, field_samples=64).with_field(model.field), rays)
+    every, _, _ = dense_reference(exact, rays, model.field)
+    assert float((many.rgb - every).abs().max()) < 0.25 * float((one.rgb - every).abs().max())
+    lidar = render_chunk(dataclasses.replace(exact, field_samples=64).with_field(model.field), rays, colour=False)
+    assert torch.equal(lidar.depth, plain.depth) and torch.equal(lidar.accumulation, plain.accumulation)
+    assert torch.equal(lidar.rgb, torch.zeros_like(lidar.rgb))
+
+
+def test_no_features_with_field_samples(model, grid, baked, tmp_path):
+    """feature_dtype none: no colour features stored (the field colours every camera ray), the same render as a
+    bake with them; without field_samples it is a one-line config error, and such files do not load."""
+    from nsim.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="field_samples"):
+        BakeConfig(feature_dtype="none", field_samples=0)
+    lean = bake(model, grid, BakeConfig(voxel_m=0.05, prune_density=0.0, feature_dtype="none", field_samples=2))
+    assert lean.features.shape == (*baked.density.shape, 0) and torch.equal(lean.density, baked.density)
+    lean.save(tmp_path)
+    back = BakedScene.load(tmp_path).with_field(model.field)
+    rays = some_rays(100)
+    full = dataclasses.replace(baked, field_samples=2).with_field(model.field)
+    assert torch.equal(render_baked(back, rays).rgb, render_baked(full, rays).rgb)
+    doc = json.loads((tmp_path / "baked.json").read_text())
+    (tmp_path / "baked.json").write_text(json.dumps({**doc, "field_samples": 0}))
+    with pytest.raises(InputError, match="no features"):
+        BakedScene.load(tmp_path)
