@@ -607,7 +607,8 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
     baked_s = cams_s + time.perf_counter() - t0
     return {"nerf_rays_s": len(sub) / nerf_s, "baked_rays_s": len(rays) / baked_s, "nerf_rays": len(sub),
             "baked_rays": len(rays), "baked_camera_rays_s": len(cams) / cams_s,
-            "baked_lidar_rays_s": len(lidar) / (baked_s - cams_s)}
+            "baked_lidar_rays_s": len(lidar) / (baked_s - cams_s), "lidar_rays": len(lidar),
+            "lidar_sweep_render_s": baked_s - cams_s}
 
 
 def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, args) -> dict:

@@ -105,10 +105,12 @@ class BakeConfig:
     stop_transmittance: float = param(1e-4, ge=0.0, lt=1.0, help="early ray termination")
     color_skip_weight: float = param(1e-3, ge=0.0, lt=1.0, help="summed weight per ray whose colour may be skipped")
     chunk_points: int = param(1 << 16, ge=256, help="field evaluations per batch while baking")
-    field_color_samples: int = param(2, ge=0, le=64, help="per ray, the samples of highest weight whose colour "
+    field_color_samples: int = param(0, ge=0, le=64, help="per ray, the samples of highest weight whose colour "
                                                           "comes from the scene field itself (0: baked features only)")
-    field_samples: int = param(0, ge=0, le=64, help="per camera ray, field queries that colour its baked weights, "
-                                                    "one per equal part of them (0: field_color_samples decides)")
+    field_samples: int = param(16, ge=0, le=64, help="per camera ray, field queries in a window around its baked "
+                                                    "surface, volume-rendered for its colour and depth (0: "
+                                                    "field_color_samples decides)")
+    field_window_voxels: float = param(2.0, gt=0.0, le=16.0, help="field_samples: the window's half width in voxels")
     cull_weight: float | None = param(None, gt=0.0, lt=1.0, help="visibility culling: drop bricks whose volume-"
                                                               "rendering weight along every training ray stays below "
                                                               "this (null: keep every brick)")
@@ -118,7 +120,8 @@ class BakeConfig:
                                                                 "the one culled; voxel_m bakes only the kept cells "
                                                                 "(null: voxel_m, one bake)")
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
+        """The settings that depend on each other (checked when baking, not per ``--set``: their order is free)."""
         if self.feature_dtype == "none" and self.field_samples == 0:
             raise ConfigError("feature_dtype: none stores no colour features; it needs field_samples > 0 (colour "
                               "from the scene field)")
@@ -203,6 +206,7 @@ class BakedScene:
     meta: dict = dataclasses.field(default_factory=dict)
     field_color_samples: int = 0
     field_samples: int = 0
+    field_window_voxels: float = 1.5
     field: nn.Module | None = None
     block_occupied: Tensor = dataclasses.field(init=False, repr=False)
 
@@ -282,6 +286,7 @@ class BakedScene:
             "color_skip_weight": self.color_skip_weight,
             "field_color_samples": self.field_color_samples,
             "field_samples": self.field_samples,
+            "field_window_voxels": self.field_window_voxels,
             "background": self.background,
             "background_rgb": [float(c) for c in self.background_rgb.cpu()],
             "layout": "brick_index[i, j, k]: brick of occupancy cell (i, j, k) or -1; density[n, (a * (B + 1) + b) * "
@@ -334,7 +339,7 @@ class BakedScene:
                 raise ValueError("aabb_m: expected [[x0, y0, z0], [x1, y1, z1]] with x1 > x0 ...")
             known = {"format", "units", "frame", "aabb_m", "grid_shape", "bricks", "bricks_per_side", "voxel_m", "geo_dim",
                      "feature_dtype", "sh_degree", "decoder_layers", "step_voxels", "block_cells", "stop_transmittance",
-                     "color_skip_weight", "field_color_samples", "field_samples", "background", "background_rgb", "layout"}
+                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "background", "background_rgb", "layout"}
             baked = cls(aabb=aabb, brick_index=torch.as_tensor(index), density=torch.as_tensor(density),
                         features=torch.as_tensor(features), bricks_per_side=b, decoder=decoder,
                         step_voxels=float(doc["step_voxels"]), block_cells=int(doc["block_cells"]),
@@ -342,6 +347,7 @@ class BakedScene:
                         color_skip_weight=float(doc["color_skip_weight"]), background=doc["background"],
                         field_color_samples=int(doc.get("field_color_samples", 0)),
                         field_samples=int(doc.get("field_samples", 0)),
+                        field_window_voxels=float(doc.get("field_window_voxels", 1.5)),
                         background_rgb=torch.tensor(doc["background_rgb"], dtype=torch.float32),
                         meta={k: v for k, v in doc.items() if k not in known})
         except (KeyError, TypeError, ValueError) as exc:
@@ -454,7 +460,8 @@ def assemble(plan: BakePlan, density: Tensor, features: Tensor, decoder: ColorDe
                       step_voxels=cfg.step_voxels, block_cells=cfg.block_cells,
                       stop_transmittance=cfg.stop_transmittance, color_skip_weight=cfg.color_skip_weight,
                       background=background, background_rgb=torch.as_tensor(background_rgb, dtype=torch.float32),
-                      meta=stats, field_color_samples=cfg.field_color_samples, field_samples=cfg.field_samples)
+                      meta=stats, field_color_samples=cfg.field_color_samples, field_samples=cfg.field_samples,
+                      field_window_voxels=cfg.field_window_voxels)
 
 
 def brick_visibility(baked: BakedScene, rays: Rays, chunk: int = 65536) -> Tensor:
@@ -537,6 +544,7 @@ def bake_passes(model, grid, cfg: BakeConfig, frames, evaluate) -> BakedScene:
     ``voxel_m``), culled by the training cameras ``frames`` (``(camera, cam_to_world)`` pairs:
     :func:`training_rays`, :func:`brick_visibility`, :func:`cull`); when ``voxel_m`` cuts the cells finer, a
     second bake at ``voxel_m`` over the kept cells alone."""
+    cfg.check()
     if cfg.cull_weight is None:
         plan = plan_bake(grid, cfg)
         return finish_bake(model, grid, plan, *evaluate(plan, cfg, "bake"), cfg)
@@ -731,31 +739,27 @@ def _composite(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, sigma_
                         background=bg)
 
 
-def _field_colours(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, weights: Tensor) -> Tensor:
-    """``field_samples = k``: each ray's baked weights ``(R, S)`` cut into ``k`` equal parts of its accumulation;
-    part ``j``'s colour is the field's at the point where the ray's cumulative weight reaches ``(j + 1/2) / k`` of
-    it (one field query each: density MLP + colour head), and a sample takes the colour of the part its weight's
-    midpoint falls in. Returns the samples' colours ``(R, S, 3)`` (rays without weight: black)."""
-    n, s = weights.shape
-    k = baked.field_samples
-    rgb_p = torch.zeros(n, s, 3, device=weights.device)
-    acc = weights.sum(-1)
-    live = torch.nonzero(acc > volume.EPS, as_tuple=True)[0]
-    if not live.numel():
-        return rgb_p
-    w, a = weights[live], acc[live, None]
-    cw = torch.cumsum(w, -1)
-    u = a * ((torch.arange(k, device=w.device, dtype=w.dtype) + 0.5) / k)  # (L, k) cumulative weight of each point
-    i = torch.searchsorted(cw, u, side="left").clamp(max=s - 1)
-    wi = torch.gather(w, -1, i)
-    frac = ((u - (torch.gather(cw, -1, i) - wi)) / wi.clamp(min=volume.EPS)).clamp(0.0, 1.0)
-    t0, t1 = torch.gather(t0_p[live], -1, i), torch.gather(t1_p[live], -1, i)
-    x = rays.origins[live, None, :] + rays.dirs[live, None, :] * (t0 + frac * (t1 - t0))[..., None]
-    geo = baked.field.density(x.reshape(-1, 3))[1].float()
-    colours = baked.decoder(geo, rays.dirs[live, None, :].expand(-1, k, -1).reshape(-1, 3)).view(-1, k, 3)
-    part = torch.floor((cw - 0.5 * w) / a * k).clamp(0, k - 1).to(torch.int64)  # (L, S)
-    rgb_p[live] = torch.gather(colours, 1, part[..., None].expand(-1, -1, 3))
-    return rgb_p
+def _field_window(baked: BakedScene, rays: Rays, centre: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``field_samples = m``: the scene field volume-rendered by itself in a window around each ray's baked median
+    depth ``centre (R,)``: ``m`` equal bins over ``centre +- field_window_voxels`` voxels (clipped to the ray), the
+    field's density and colour at their midpoints (``m`` field queries), weights as ``volume.render_weights``.
+    Returns the window's colour normalised by its weight ``(R, 3)``, its expected and median depth ``(R,)`` and
+    its weight ``(R,)`` (how much of the surface the window holds)."""
+    m = baked.field_samples
+    half = baked.field_window_voxels * float(baked.voxel_m.max())
+    a = torch.maximum(centre - half, rays.near)
+    b = torch.minimum(centre + half, rays.far)
+    edges = a[:, None] + (b - a)[:, None] * torch.linspace(0.0, 1.0, m + 1, device=centre.device)[None]
+    t0, t1 = edges[:, :-1], edges[:, 1:]
+    mid = 0.5 * (t0 + t1)
+    x = rays.origins[:, None, :] + rays.dirs[:, None, :] * mid[..., None]
+    sigma, geo = baked.field.density(x.reshape(-1, 3))
+    rgb = baked.decoder(geo.float(), rays.dirs[:, None, :].expand(-1, m, -1).reshape(-1, 3)).view(-1, m, 3)
+    w, _ = volume.render_weights(sigma.float().view(-1, m), t1 - t0)
+    acc = w.sum(-1)
+    colour = volume.accumulate(w, rgb) / acc.clamp(min=volume.EPS)[:, None]
+    colour = torch.where((acc > volume.EPS)[:, None], colour, rgb[:, m // 2])  # a clear window: its middle's colour
+    return colour, volume.expected_depth(w, mid, acc), volume.median_depth(w, mid), acc
 
 
 @torch.no_grad()
@@ -775,11 +779,18 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
     t1_p = far.clone().index_put((ray, slot), t1)
     sigma_p = torch.zeros(n, s_pad, device=device).index_put((ray, slot), sigma)
     weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
-    if colour and baked.field is not None and baked.field_samples > 0:
-        rgb_p = _field_colours(baked, rays, t0_p, t1_p, weights)
+    window = None
+    if colour and baked.field is not None and baked.field_samples > 0 and ray.numel():
+        # the field's own colour (and depth) from a window around the baked surface; every sample of a ray takes
+        # the window's colour, so that the ray's colour is acc * colour + (1 - acc) * background
+        live = torch.nonzero(weights.sum(-1) > volume.EPS, as_tuple=True)[0]
+        mid_p = 0.5 * (t0_p + t1_p)
+        window = (live, *_field_window(baked, rays[live], volume.median_depth(weights[live], mid_p[live])))
+        rgb_p = torch.zeros(n, s_pad, 3, device=device)
+        rgb_p[live] = window[1][:, None, :].expand(-1, s_pad, -1)
     else:
         rgb_p = torch.zeros(n, s_pad, 3, device=device)
-    if colour and (baked.field is None or baked.field_samples == 0):
+    if colour and window is None:
         if baked.features.shape[-1] == 0:
             raise ValueError("render_chunk: a baked scene without features (feature_dtype none) needs the scene field "
                              "attached (with_field) and field_samples > 0")
@@ -804,7 +815,13 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
                 x = rays.origins[r_top] + rays.dirs[r_top] * mid[:, None]
                 geo = baked.field.density(x)[1].float()
                 rgb_p[r_top, sl] = baked.decoder(geo, rays.dirs[r_top])
-    return _composite(baked, rays, t0_p, t1_p, sigma_p, rgb_p, counts, return_samples, weights)
+    out = _composite(baked, rays, t0_p, t1_p, sigma_p, rgb_p, counts, return_samples, weights)
+    if window is not None:  # the window's depth where it holds most of the surface
+        live, _, depth, median, acc = window
+        sure = acc > 0.5
+        out.depth[live] = torch.where(sure, depth, out.depth[live])
+        out.depth_median[live] = torch.where(sure, median, out.depth_median[live])
+    return out
 
 
 def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_samples: bool = False,

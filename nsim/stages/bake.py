@@ -120,6 +120,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     store = ctx.store
     inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
+    cfg.check()
     key = action_key(inputs, cfg, ctx)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(baked=hit.id, cache_hit=True)
