@@ -49,7 +49,8 @@ Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     NeRF's ``final_samples`` (and its proposal samples); accumulation and depth stay the baked ones. Otherwise, with ``field_color_samples = k > 0``,
     the ``k`` heaviest samples of each ray take the field's colour at their midpoints and the rest the
     interpolated features' (configs/bake/default.yaml has the measurements of both). Rays rendered without
-    colour (``colour=False``: a LiDAR) take the baked density alone.
+    colour (``colour=False``: a LiDAR) decode none: their depth is the window's (the field's density alone)
+    with ``field_samples``, else the baked density's.
 
 Shapes: rays ``(R,)``; ``brick_index (X, Y, Z)`` int32 (``-1``: no brick); ``density (N, P)``
 float32 and ``features (N, P, G)`` with ``P = (B + 1)^3`` lattice points per brick, lattice point
@@ -739,12 +740,13 @@ def _composite(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, sigma_
                         background=bg)
 
 
-def _field_window(baked: BakedScene, rays: Rays, centre: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = True) -> tuple[Tensor, ...]:
     """``field_samples = m``: the scene field volume-rendered by itself in a window around each ray's baked median
     depth ``centre (R,)``: ``m`` equal bins over ``centre +- field_window_voxels`` voxels (clipped to the ray), the
-    field's density and colour at their midpoints (``m`` field queries), weights as ``volume.render_weights``.
-    Returns the window's colour normalised by its weight ``(R, 3)``, its expected and median depth ``(R,)`` and
-    its weight ``(R,)`` (how much of the surface the window holds)."""
+    field's density at their midpoints (``m`` field queries; the colour head only where the weight is not
+    negligible, ``color_skip_weight``), weights as ``volume.render_weights``.
+    Returns the window's colour normalised by its weight ``(R, 3)`` (``colour=False``: zeros, no colour head),
+    its expected and median depth ``(R,)`` and its weight ``(R,)`` (how much of the surface the window holds)."""
     m = baked.field_samples
     half = baked.field_window_voxels * float(baked.voxel_m.max())
     a = torch.maximum(centre - half, rays.near)
@@ -754,18 +756,27 @@ def _field_window(baked: BakedScene, rays: Rays, centre: Tensor) -> tuple[Tensor
     mid = 0.5 * (t0 + t1)
     x = rays.origins[:, None, :] + rays.dirs[:, None, :] * mid[..., None]
     sigma, geo = baked.field.density(x.reshape(-1, 3))
-    rgb = baked.decoder(geo.float(), rays.dirs[:, None, :].expand(-1, m, -1).reshape(-1, 3)).view(-1, m, 3)
     w, _ = volume.render_weights(sigma.float().view(-1, m), t1 - t0)
     acc = w.sum(-1)
+    # colour where a bin's weight reaches color_skip_weight / m of the window's (the skipped ones change the
+    # normalised colour by at most color_skip_weight), and the middle bin of a clear window (its colour then)
+    clear = acc <= volume.EPS
+    need = w >= (baked.color_skip_weight / m) * acc[:, None]
+    need[:, m // 2] |= clear
+    need &= colour
+    idx = torch.nonzero(need.view(-1), as_tuple=True)[0]
+    rgb = torch.zeros(len(centre) * m, 3, device=centre.device)
+    rgb[idx] = baked.decoder(geo[idx].float(), rays.dirs[idx // m])
+    rgb = rgb.view(-1, m, 3)
     colour = volume.accumulate(w, rgb) / acc.clamp(min=volume.EPS)[:, None]
-    colour = torch.where((acc > volume.EPS)[:, None], colour, rgb[:, m // 2])  # a clear window: its middle's colour
+    colour = torch.where(clear[:, None], rgb[:, m // 2], colour)
     return colour, volume.expected_depth(w, mid, acc), volume.median_depth(w, mid), acc
 
 
 @torch.no_grad()
 def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, colour: bool = True) -> RenderOutput:
     """Render ``rays`` (all at once: chunk outside) from the baked scene (module docstring). ``colour=False``
-    (a LiDAR): the baked density alone, no colour decoded (rgb is the background)."""
+    (a LiDAR): depth and accumulation, no colour decoded (rgb is the background)."""
     n = len(rays)
     device = rays.origins.device
     ray, t0, t1, sigma, brick, local = _march(baked, rays)
@@ -780,16 +791,15 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
     sigma_p = torch.zeros(n, s_pad, device=device).index_put((ray, slot), sigma)
     weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
     window = None
-    if colour and baked.field is not None and baked.field_samples > 0 and ray.numel():
-        # the field's own colour (and depth) from a window around the baked surface; every sample of a ray takes
-        # the window's colour, so that the ray's colour is acc * colour + (1 - acc) * background
+    rgb_p = torch.zeros(n, s_pad, 3, device=device)
+    if baked.field is not None and baked.field_samples > 0 and ray.numel():
+        # the field's own colour and depth from a window around the baked surface (a LiDAR's: its depth alone);
+        # every sample of a ray takes the window's colour: the ray's is acc * colour + (1 - acc) * background
         live = torch.nonzero(weights.sum(-1) > volume.EPS, as_tuple=True)[0]
         mid_p = 0.5 * (t0_p + t1_p)
-        window = (live, *_field_window(baked, rays[live], volume.median_depth(weights[live], mid_p[live])))
-        rgb_p = torch.zeros(n, s_pad, 3, device=device)
-        rgb_p[live] = window[1][:, None, :].expand(-1, s_pad, -1)
-    else:
-        rgb_p = torch.zeros(n, s_pad, 3, device=device)
+        window = (live, *_field_window(baked, rays[live], volume.median_depth(weights[live], mid_p[live]), colour))
+        if colour:
+            rgb_p[live] = window[1][:, None, :].expand(-1, s_pad, -1)
     if colour and window is None:
         if baked.features.shape[-1] == 0:
             raise ValueError("render_chunk: a baked scene without features (feature_dtype none) needs the scene field "

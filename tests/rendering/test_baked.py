@@ -347,7 +347,7 @@ def test_field_samples_render_the_field_in_a_window_around_the_baked_surface(bak
     """field_samples = m: the baked march decides where a ray's surface is (its median depth) and how much light
     it stops (accumulation); the field, volume-rendered by itself over m bins in +- field_window_voxels around
     that depth, its colour and (where the window holds over half the weight) its depth. Against a plain twin (a
-    loop over rays over the dense march's samples); a LiDAR's rays (colour=False) keep the baked geometry."""
+    loop over rays over the dense march's samples); a LiDAR's rays (colour=False) the same depth, no colour."""
     weights, biases = baked.decoder.arrays()
     weights[0] = weights[0] * 30.0  # a colour head that shows its features (the untrained one is nearly flat)
     sharp = ColorDecoder([torch.as_tensor(w) for w in weights], [torch.as_tensor(b) for b in biases], 2)
@@ -390,8 +390,8 @@ def test_field_samples_render_the_field_in_a_window_around_the_baked_surface(bak
     torch.testing.assert_close(out.rgb, rgb, rtol=0, atol=1e-5)
     torch.testing.assert_close(out.depth, depth, rtol=0, atol=1e-4)
     assert float((out.rgb - plain.rgb).abs().max()) > 1e-5  # the field's colours, not the baked features'
-    lidar = render_chunk(windowed, rays, colour=False)
-    assert torch.equal(lidar.depth, plain.depth) and torch.equal(lidar.accumulation, plain.accumulation)
+    lidar = render_chunk(windowed, rays, colour=False)  # a LiDAR's rays: the same geometry, no colour
+    assert torch.equal(lidar.depth, out.depth) and torch.equal(lidar.accumulation, out.accumulation)
     assert torch.equal(lidar.rgb, torch.zeros_like(lidar.rgb))
 
 
