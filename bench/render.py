@@ -51,12 +51,13 @@ method=baked``) against the NeRF (``method: proposal``, the stage's default), si
    over the oracle's valid pixels, each one's depth AbsRel against the oracle and LiDAR median range error
    against the oracle's exact scan (``nsim.metrics.lidar``);
 9. speed: rays/s in-process on one tick's rays (cameras at ``--image-scale`` + LiDAR; the NeRF on a random
-   ``--nerf-rays`` of them), 2 threads, the stage's chunk; the wall time of one full Spot tick (five
+   ``--nerf-rays`` of them), 2 threads, the stage's chunk, each renderer as the stage runs it (the baked scene
+   with the scene field attached, its LiDAR rays without colour); the wall time of one full Spot tick (five
    fisheyes at ``--tick-scale``, 1.0 = 640x480, and the 16x1800 LiDAR) and of the LiDAR sweep alone through
-   the stage, files written, after a warm-up.
+   the stage, files written, after a warm-up. Wall time: on a shared machine time them again when it is quiet.
 
-Its JSON line leads with ``nerf_rays_s, baked_rays_s, speedup, psnr_baked_vs_nerf, spot_tick_s, lidar_sweep_s,
-bake_s, bake_mb``. ``--quick --baked``: the tiny capture and scene, 3 held-out views, the tick at x0.25.
+Then issue 25's bars, met or not. Its JSON line leads with ``nerf_rays_s, baked_rays_s, speedup,
+psnr_baked_vs_nerf, spot_tick_s, lidar_sweep_s, bake_s, bake_mb``. ``--quick --baked``: the tiny capture and scene, 3 held-out views, the tick at x0.25.
 
 Prints tables and one JSON object on the last line.
 """
