@@ -51,12 +51,13 @@ method=baked``) against the NeRF (``method: proposal``, the stage's default), si
    over the oracle's valid pixels, each one's depth AbsRel against the oracle and LiDAR median range error
    against the oracle's exact scan (``nsim.metrics.lidar``);
 9. speed: rays/s in-process on one tick's rays (cameras at ``--image-scale`` + LiDAR; the NeRF on a random
-   ``--nerf-rays`` of them), 2 threads, the stage's chunk; the wall time of one full Spot tick (five
+   ``--nerf-rays`` of them), 2 threads, the stage's chunk, each renderer as the stage runs it (the baked scene
+   with the scene field attached, its LiDAR rays without colour); the wall time of one full Spot tick (five
    fisheyes at ``--tick-scale``, 1.0 = 640x480, and the 16x1800 LiDAR) and of the LiDAR sweep alone through
-   the stage, files written, after a warm-up.
+   the stage, files written, after a warm-up. Wall time: on a shared machine time them again when it is quiet.
 
-Its JSON line leads with ``nerf_rays_s, baked_rays_s, speedup, psnr_baked_vs_nerf, spot_tick_s, lidar_sweep_s,
-bake_s, bake_mb``. ``--quick --baked``: the tiny capture and scene, 3 held-out views, the tick at x0.25.
+Then issue 25's bars, met or not. Its JSON line leads with ``nerf_rays_s, baked_rays_s, speedup,
+psnr_baked_vs_nerf, spot_tick_s, lidar_sweep_s, bake_s, bake_mb``. ``--quick --baked``: the tiny capture and scene, 3 held-out views, the tick at x0.25.
 
 Prints tables and one JSON object on the last line.
 """
@@ -565,7 +566,7 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
 
     from nsim.rendering import OccupancyGrid, load_model
     from nsim.rendering.baked import BakedScene, render_baked
-    from nsim.rendering.rays import make_rays
+    from nsim.rendering.rays import Rays, make_rays
     from nsim.rendering.renderer import render_rays
     from nsim.sensors.rig import Rig
 
@@ -574,27 +575,41 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
     model = load_model(scene.path, "cpu")
     grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"))
     baked = BakedScene.load(store.get(baked_id).path)
+    if baked.field_samples > 0 or baked.field_color_samples > 0:  # as the render stage attaches it
+        baked = baked.with_field(model.field)
     cfg = render.Config()
     rig = adapt_rig(Rig.load(SPOT), dataclasses.replace(cfg, image_scale=args.image_scale))
     body = np.load(store.get(traj).file("trajectory.npz"))["robot_pose_se3"][args.tick_stride]
-    o, d = zip(*(s.rays(body) for s in rig.sensors), strict=True)
-    o = np.concatenate([x.reshape(-1, 3) for x in o])
-    d = np.concatenate([x.reshape(-1, 3) for x in d])
-    d = np.where(np.isfinite(d).all(-1, keepdims=True), d, [0.0, 0.0, 1.0])
     sc = model.sampler_cfg
-    rays = make_rays(torch.as_tensor(o, dtype=torch.float32), torch.as_tensor(d, dtype=torch.float32), sc.near_m,
-                     sc.far_m, model.aabb if sc.clip_rays_to_box else None)
+
+    def rays_of(sensors) -> object:
+        o, d = zip(*(s.rays(body) for s in sensors), strict=True)
+        o = np.concatenate([x.reshape(-1, 3) for x in o])
+        d = np.concatenate([x.reshape(-1, 3) for x in d])
+        d = np.where(np.isfinite(d).all(-1, keepdims=True), d, [0.0, 0.0, 1.0])
+        return make_rays(torch.as_tensor(o, dtype=torch.float32), torch.as_tensor(d, dtype=torch.float32), sc.near_m,
+                         sc.far_m, model.aabb if sc.clip_rays_to_box else None)
+
+    cams = rays_of([s for s in rig.sensors if s.type != "lidar"])
+    lidar = rays_of([s for s in rig.sensors if s.type == "lidar"])
+    rays = Rays(*(torch.cat([getattr(cams, f), getattr(lidar, f)]) for f in ("origins", "dirs", "near", "far")))
     g = torch.Generator().manual_seed(0)
     sub = rays[torch.randperm(len(rays), generator=g)[: min(len(rays), args.nerf_rays)]]
     render_baked(baked, sub[:2048], cfg.chunk_rays)  # warm-up: first-call allocations
     t0 = time.perf_counter()
     render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays)
     nerf_s = time.perf_counter() - t0
+    # as the stage renders them: the cameras with colour, the LiDAR with the baked density alone
     t0 = time.perf_counter()
-    render_baked(baked, rays, cfg.chunk_rays)
-    baked_s = time.perf_counter() - t0
+    render_baked(baked, cams, cfg.chunk_rays)
+    cams_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    render_baked(baked, lidar, cfg.chunk_rays, colour=False)
+    baked_s = cams_s + time.perf_counter() - t0
     return {"nerf_rays_s": len(sub) / nerf_s, "baked_rays_s": len(rays) / baked_s, "nerf_rays": len(sub),
-            "baked_rays": len(rays)}
+            "baked_rays": len(rays), "baked_camera_rays_s": len(cams) / cams_s,
+            "baked_lidar_rays_s": len(lidar) / (baked_s - cams_s), "lidar_rays": len(lidar),
+            "lidar_sweep_render_s": baked_s - cams_s}
 
 
 def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, args) -> dict:
@@ -708,6 +723,16 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
                       "psnr_baked_vs_nerf": h["psnr_vs_nerf"], "spot_tick_s": sp["spot_tick_s"],
                       "lidar_sweep_s": sp["lidar_sweep_s"], "bake_s": res["bake"]["bake_s"],
                       "bake_mb": res["bake"]["bake_mb"]}
+    # issue 25's bars (the goals: the tick and the sweep at 640x480 on 2 cores)
+    res["bars"] = {"speedup_ge_10": sp["speedup"] >= 10.0,
+                   "heldout_psnr_within_0.5_db": h["baked_psnr"] >= h["nerf_psnr"] - 0.5,
+                   "heldout_abs_rel_within_10_pct": h["baked_abs_rel"] <= 1.1 * h["nerf_abs_rel"],
+                   "spot_abs_rel_within_10_pct": p["baked_abs_rel"] <= 1.1 * p["nerf_abs_rel"],
+                   "lidar_error_within_10_pct": p["baked_lidar_median_range_error_m"]
+                   <= 1.1 * p["nerf_lidar_median_range_error_m"],
+                   "goal_spot_tick_le_12_s": sp["spot_tick_s"] <= 12.0 and args.tick_scale == 1.0,
+                   "goal_lidar_sweep_le_0.3_s": sp["lidar_sweep_s"] <= 0.3}
+    print("bars: " + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in res["bars"].items()), flush=True)
     return res
 
 

@@ -41,12 +41,16 @@ Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     depth, median depth, accumulation, the background). Colour is decoded only for samples
     whose weight reaches ``color_skip_weight / n`` (``n`` the ray's kept samples): the skipped
     ones count as black, so a ray's colour is off by at most ``color_skip_weight`` per channel.
-    With ``field_color_samples = k > 0`` and the scene field attached (``with_field``; ``nsim render``
-    attaches the checkpoint's), the ``k`` heaviest samples of each ray take their colour from the field's
-    own geometry features there (one hash-grid lookup each) instead of the interpolated ones: the baked
-    grid decides where a ray's light comes from, the field what colour it has. On the cpu-preset test room
-    at 4 cm voxels this took the images from 24.5 to 28.3 dB against the NeRF (k = 2; 29.4 at k = 4) for
-    about a third of the baked marcher's speed (configs/bake/default.yaml has the measurements).
+    Colour from the scene field (the field attached with ``with_field``; ``nsim render`` attaches the
+    checkpoint's): with ``field_samples = k > 0`` (instant-NGP's division of labour: a baked structure decides
+    where a ray's light comes from, the field is queried only where it does) the baked weights of each camera
+    ray are cut into ``k`` equal parts of its accumulation and each part takes the field's colour at its middle
+    quantile (``_field_colours``): ``k`` field queries a ray, where its light comes from, instead of the
+    NeRF's ``final_samples`` (and its proposal samples); accumulation and depth stay the baked ones. Otherwise, with ``field_color_samples = k > 0``,
+    the ``k`` heaviest samples of each ray take the field's colour at their midpoints and the rest the
+    interpolated features' (configs/bake/default.yaml has the measurements of both). Rays rendered without
+    colour (``colour=False``: a LiDAR) decode none: their depth is the window's (the field's density alone)
+    with ``field_samples``, else the baked density's.
 
 Shapes: rays ``(R,)``; ``brick_index (X, Y, Z)`` int32 (``-1``: no brick); ``density (N, P)``
 float32 and ``features (N, P, G)`` with ``P = (B + 1)^3`` lattice points per brick, lattice point
@@ -72,7 +76,7 @@ import torch
 from torch import Tensor, nn
 
 from nsim.config import param
-from nsim.errors import InputError
+from nsim.errors import ConfigError, InputError
 from nsim.fields.encodings import spherical_harmonics
 from nsim.fields.mlp import MLP
 from nsim.rendering import volume
@@ -82,7 +86,7 @@ from nsim.rendering.rays import Rays
 FORMAT = 1
 BAKED_FILE = "baked.json"
 ARRAY_FILES = ("brick_index.npy", "density.npy", "features.npy")
-FEATURE_DTYPES = ("float16", "float32")
+FEATURE_DTYPES = ("float16", "float32", "none")
 
 
 @dataclass(frozen=True)
@@ -94,14 +98,20 @@ class BakeConfig:
     supersample: int = param(1, ge=1, le=4, help="points per voxel side averaged into a lattice value (1: the point)")
     prune_density: float | None = param(0.5, ge=0.0, help="drop bricks whose baked density (1/m) stays below "
                                                           "this everywhere (null: the occupancy grid's threshold)")
-    feature_dtype: str = param("float16", choices=FEATURE_DTYPES, help="storage of the geometry features")
+    feature_dtype: str = param("float16", choices=FEATURE_DTYPES, help="storage of the geometry features (none: "
+                                                                       "not stored; colour from the field alone, "
+                                                                       "field_samples > 0)")
     step_voxels: float = param(0.5, gt=0.0, le=4.0, help="render step as a fraction of the voxel")
     block_cells: int = param(16, ge=1, le=4096, help="coarse steps marched at once per ray")
     stop_transmittance: float = param(1e-4, ge=0.0, lt=1.0, help="early ray termination")
     color_skip_weight: float = param(1e-3, ge=0.0, lt=1.0, help="summed weight per ray whose colour may be skipped")
     chunk_points: int = param(1 << 16, ge=256, help="field evaluations per batch while baking")
-    field_color_samples: int = param(2, ge=0, le=64, help="per ray, the samples of highest weight whose colour "
+    field_color_samples: int = param(0, ge=0, le=64, help="per ray, the samples of highest weight whose colour "
                                                           "comes from the scene field itself (0: baked features only)")
+    field_samples: int = param(16, ge=0, le=64, help="per camera ray, field queries in a window around its baked "
+                                                    "surface, volume-rendered for its colour and depth (0: "
+                                                    "field_color_samples decides)")
+    field_window_voxels: float = param(2.0, gt=0.0, le=16.0, help="field_samples: the window's half width in voxels")
     cull_weight: float | None = param(None, gt=0.0, lt=1.0, help="visibility culling: drop bricks whose volume-"
                                                               "rendering weight along every training ray stays below "
                                                               "this (null: keep every brick)")
@@ -110,6 +120,12 @@ class BakeConfig:
     cull_voxel_m: float | None = param(None, gt=0.0, le=1.0, help="visibility culling: the voxels of the first bake, "
                                                                 "the one culled; voxel_m bakes only the kept cells "
                                                                 "(null: voxel_m, one bake)")
+
+    def check(self) -> None:
+        """The settings that depend on each other (checked when baking, not per ``--set``: their order is free)."""
+        if self.feature_dtype == "none" and self.field_samples == 0:
+            raise ConfigError("feature_dtype: none stores no colour features; it needs field_samples > 0 (colour "
+                              "from the scene field)")
 
 
 # ---------------------------------------------------------------------------------- the colour head
@@ -190,6 +206,8 @@ class BakedScene:
     background_rgb: Tensor
     meta: dict = dataclasses.field(default_factory=dict)
     field_color_samples: int = 0
+    field_samples: int = 0
+    field_window_voxels: float = 1.5
     field: nn.Module | None = None
     block_occupied: Tensor = dataclasses.field(init=False, repr=False)
 
@@ -268,6 +286,8 @@ class BakedScene:
             "stop_transmittance": self.stop_transmittance,
             "color_skip_weight": self.color_skip_weight,
             "field_color_samples": self.field_color_samples,
+            "field_samples": self.field_samples,
+            "field_window_voxels": self.field_window_voxels,
             "background": self.background,
             "background_rgb": [float(c) for c in self.background_rgb.cpu()],
             "layout": "brick_index[i, j, k]: brick of occupancy cell (i, j, k) or -1; density[n, (a * (B + 1) + b) * "
@@ -309,7 +329,9 @@ class BakedScene:
                 weights.append(torch.as_tensor(_read_array(baked_dir / wf, None, np.float32)))
                 biases.append(torch.as_tensor(_read_array(baked_dir / bf, None, np.float32)))
             decoder = ColorDecoder(weights, biases, int(doc["sh_degree"]))
-            if decoder.geo_dim != g:
+            if g == 0 and int(doc.get("field_samples", 0)) == 0:
+                raise ValueError("no features stored (feature_dtype none) and field_samples 0: no colour")
+            if g and decoder.geo_dim != g:
                 raise ValueError(f"decoder reads {decoder.geo_dim} features, the grid holds {g}")
             if doc["background"] not in BACKGROUNDS:
                 raise ValueError(f"background {doc['background']!r}")
@@ -318,13 +340,15 @@ class BakedScene:
                 raise ValueError("aabb_m: expected [[x0, y0, z0], [x1, y1, z1]] with x1 > x0 ...")
             known = {"format", "units", "frame", "aabb_m", "grid_shape", "bricks", "bricks_per_side", "voxel_m", "geo_dim",
                      "feature_dtype", "sh_degree", "decoder_layers", "step_voxels", "block_cells", "stop_transmittance",
-                     "color_skip_weight", "field_color_samples", "background", "background_rgb", "layout"}
+                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "background", "background_rgb", "layout"}
             baked = cls(aabb=aabb, brick_index=torch.as_tensor(index), density=torch.as_tensor(density),
                         features=torch.as_tensor(features), bricks_per_side=b, decoder=decoder,
                         step_voxels=float(doc["step_voxels"]), block_cells=int(doc["block_cells"]),
                         stop_transmittance=float(doc["stop_transmittance"]),
                         color_skip_weight=float(doc["color_skip_weight"]), background=doc["background"],
                         field_color_samples=int(doc.get("field_color_samples", 0)),
+                        field_samples=int(doc.get("field_samples", 0)),
+                        field_window_voxels=float(doc.get("field_window_voxels", 1.5)),
                         background_rgb=torch.tensor(doc["background_rgb"], dtype=torch.float32),
                         meta={k: v for k, v in doc.items() if k not in known})
         except (KeyError, TypeError, ValueError) as exc:
@@ -425,7 +449,10 @@ def assemble(plan: BakePlan, density: Tensor, features: Tensor, decoder: ColorDe
     index = torch.full(plan.shape, -1, dtype=torch.int32, device=dens.device)
     if len(cells):
         index[cells[:, 0], cells[:, 1], cells[:, 2]] = torch.arange(len(cells), dtype=torch.int32, device=dens.device)
-    feats = features[plan.inverse[keep]].to(getattr(torch, cfg.feature_dtype))
+    if cfg.feature_dtype == "none":  # colour from the field alone (field_samples): no features stored
+        feats = torch.zeros(int(keep.sum()), plan.inverse.shape[1], 0, dtype=torch.float16, device=dens.device)
+    else:
+        feats = features[plan.inverse[keep]].to(getattr(torch, cfg.feature_dtype))
     stats = {"occupied_cells": int(len(plan.cells)), "pruned_bricks": int((~keep).sum()),
              "prune_density_per_m": float(prune_density), "lattice_points_evaluated": plan.n_points,
              "supersample": cfg.supersample, **(meta or {})}
@@ -434,7 +461,8 @@ def assemble(plan: BakePlan, density: Tensor, features: Tensor, decoder: ColorDe
                       step_voxels=cfg.step_voxels, block_cells=cfg.block_cells,
                       stop_transmittance=cfg.stop_transmittance, color_skip_weight=cfg.color_skip_weight,
                       background=background, background_rgb=torch.as_tensor(background_rgb, dtype=torch.float32),
-                      meta=stats, field_color_samples=cfg.field_color_samples)
+                      meta=stats, field_color_samples=cfg.field_color_samples, field_samples=cfg.field_samples,
+                      field_window_voxels=cfg.field_window_voxels)
 
 
 def brick_visibility(baked: BakedScene, rays: Rays, chunk: int = 65536) -> Tensor:
@@ -517,6 +545,7 @@ def bake_passes(model, grid, cfg: BakeConfig, frames, evaluate) -> BakedScene:
     ``voxel_m``), culled by the training cameras ``frames`` (``(camera, cam_to_world)`` pairs:
     :func:`training_rays`, :func:`brick_visibility`, :func:`cull`); when ``voxel_m`` cuts the cells finer, a
     second bake at ``voxel_m`` over the kept cells alone."""
+    cfg.check()
     if cfg.cull_weight is None:
         plan = plan_bake(grid, cfg)
         return finish_bake(model, grid, plan, *evaluate(plan, cfg, "bake"), cfg)
@@ -687,44 +716,15 @@ def _march(baked: BakedScene, rays: Rays) -> tuple[Tensor, ...]:
     return ray[order], t0[order], t1[order], sig[order], brick[order], local[order]
 
 
-@torch.no_grad()
-def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False) -> RenderOutput:
-    """Render ``rays`` (all at once: chunk outside) from the baked scene (module docstring)."""
+def _composite(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, sigma_p: Tensor, rgb_p: Tensor,
+               counts: Tensor, return_samples: bool, weights: Tensor | None = None) -> RenderOutput:
+    """Volume rendering of padded ``(R, S)`` samples (``counts (R,)`` kept, the rest empty at the far end) as
+    ``SceneModel.render_grid`` does it: weights, the background (``last_sample``: each ray's last kept sample),
+    normalised expected depth, median depth, accumulation."""
     n = len(rays)
     device = rays.origins.device
-    ray, t0, t1, sigma, brick, local = _march(baked, rays)
-    counts = torch.bincount(ray, minlength=n)
-    starts = torch.cumsum(counts, 0) - counts
-    slot = torch.arange(ray.shape[0], device=device) - starts[ray]
-    s_pad = max(1, int(counts.max()) if ray.numel() else 1)
-    # padded (R, S) layout for volume rendering; padding: empty intervals at the far end (as render_grid)
-    far = rays.far[:, None].expand(n, s_pad)
-    t0_p = far.clone().index_put((ray, slot), t0)
-    t1_p = far.clone().index_put((ray, slot), t1)
-    sigma_p = torch.zeros(n, s_pad, device=device).index_put((ray, slot), sigma)
-    weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
-    # colour where the weight reaches the ray's skip budget shared over its samples (and the last sample,
-    # which the last_sample background needs)
-    w = weights[ray, slot]
-    colour = w >= baked.color_skip_weight / counts[ray].clamp(min=1).to(w.dtype)
-    if baked.background == "last_sample":
-        colour |= slot == counts[ray] - 1
-    rgb_p = torch.zeros(n, s_pad, 3, device=device)
-    idx = torch.nonzero(colour, as_tuple=True)[0]
-    if idx.numel():
-        geo = features_at(baked, brick[idx], local[idx])
-        rgb_p[ray[idx], slot[idx]] = baked.decoder(geo, rays.dirs[ray[idx]])
-    k = min(baked.field_color_samples, s_pad)
-    if baked.field is not None and k > 0 and ray.numel():
-        # the heaviest samples of each ray: their colour from the field's own geometry features
-        w_top, s_top = torch.topk(weights, k, dim=-1)
-        r_top, c_top = torch.nonzero(w_top > 0, as_tuple=True)
-        if r_top.numel():
-            sl = s_top[r_top, c_top]
-            mid = 0.5 * (t0_p[r_top, sl] + t1_p[r_top, sl])
-            x = rays.origins[r_top] + rays.dirs[r_top] * mid[:, None]
-            geo = baked.field.density(x)[1].float()
-            rgb_p[r_top, sl] = baked.decoder(geo, rays.dirs[r_top])
+    if weights is None:
+        weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
     acc = weights.sum(-1)
     const = baked.background_rgb.to(device).expand(n, 3)
     if baked.background == "last_sample" and n:
@@ -740,9 +740,105 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False) ->
                         background=bg)
 
 
-def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_samples: bool = False) -> RenderOutput:
+def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = True) -> tuple[Tensor, ...]:
+    """``field_samples = m``: the scene field volume-rendered by itself in a window around each ray's baked median
+    depth ``centre (R,)``: ``m`` equal bins over ``centre +- field_window_voxels`` voxels (clipped to the ray), the
+    field's density at their midpoints (``m`` field queries; the colour head only where the weight is not
+    negligible, ``color_skip_weight``), weights as ``volume.render_weights``.
+    Returns the window's colour normalised by its weight ``(R, 3)`` (``colour=False``: zeros, no colour head),
+    its expected and median depth ``(R,)`` and its weight ``(R,)`` (how much of the surface the window holds)."""
+    m = baked.field_samples
+    half = baked.field_window_voxels * float(baked.voxel_m.max())
+    a = torch.maximum(centre - half, rays.near)
+    b = torch.minimum(centre + half, rays.far)
+    edges = a[:, None] + (b - a)[:, None] * torch.linspace(0.0, 1.0, m + 1, device=centre.device)[None]
+    t0, t1 = edges[:, :-1], edges[:, 1:]
+    mid = 0.5 * (t0 + t1)
+    x = rays.origins[:, None, :] + rays.dirs[:, None, :] * mid[..., None]
+    sigma, geo = baked.field.density(x.reshape(-1, 3))
+    w, _ = volume.render_weights(sigma.float().view(-1, m), t1 - t0)
+    acc = w.sum(-1)
+    # colour where a bin's weight reaches color_skip_weight / m of the window's (the skipped ones change the
+    # normalised colour by at most color_skip_weight), and the middle bin of a clear window (its colour then)
+    clear = acc <= volume.EPS
+    need = w >= (baked.color_skip_weight / m) * acc[:, None]
+    need[:, m // 2] |= clear
+    need &= colour
+    idx = torch.nonzero(need.view(-1), as_tuple=True)[0]
+    rgb = torch.zeros(len(centre) * m, 3, device=centre.device)
+    rgb[idx] = baked.decoder(geo[idx].float(), rays.dirs[idx // m])
+    rgb = rgb.view(-1, m, 3)
+    colour = volume.accumulate(w, rgb) / acc.clamp(min=volume.EPS)[:, None]
+    colour = torch.where(clear[:, None], rgb[:, m // 2], colour)
+    return colour, volume.expected_depth(w, mid, acc), volume.median_depth(w, mid), acc
+
+
+@torch.no_grad()
+def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, colour: bool = True) -> RenderOutput:
+    """Render ``rays`` (all at once: chunk outside) from the baked scene (module docstring). ``colour=False``
+    (a LiDAR): depth and accumulation, no colour decoded (rgb is the background)."""
+    n = len(rays)
+    device = rays.origins.device
+    ray, t0, t1, sigma, brick, local = _march(baked, rays)
+    counts = torch.bincount(ray, minlength=n)
+    starts = torch.cumsum(counts, 0) - counts
+    slot = torch.arange(ray.shape[0], device=device) - starts[ray]
+    s_pad = max(1, int(counts.max()) if ray.numel() else 1)
+    # padded (R, S) layout for volume rendering; padding: empty intervals at the far end (as render_grid)
+    far = rays.far[:, None].expand(n, s_pad)
+    t0_p = far.clone().index_put((ray, slot), t0)
+    t1_p = far.clone().index_put((ray, slot), t1)
+    sigma_p = torch.zeros(n, s_pad, device=device).index_put((ray, slot), sigma)
+    weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
+    window = None
+    rgb_p = torch.zeros(n, s_pad, 3, device=device)
+    if baked.field is not None and baked.field_samples > 0 and ray.numel():
+        # the field's own colour and depth from a window around the baked surface (a LiDAR's: its depth alone);
+        # every sample of a ray takes the window's colour: the ray's is acc * colour + (1 - acc) * background
+        live = torch.nonzero(weights.sum(-1) > volume.EPS, as_tuple=True)[0]
+        mid_p = 0.5 * (t0_p + t1_p)
+        window = (live, *_field_window(baked, rays[live], volume.median_depth(weights[live], mid_p[live]), colour))
+        if colour:
+            rgb_p[live] = window[1][:, None, :].expand(-1, s_pad, -1)
+    if colour and window is None:
+        if baked.features.shape[-1] == 0:
+            raise ValueError("render_chunk: a baked scene without features (feature_dtype none) needs the scene field "
+                             "attached (with_field) and field_samples > 0")
+        # colour where the weight reaches the ray's skip budget shared over its samples (and the last sample,
+        # which the last_sample background needs)
+        w = weights[ray, slot]
+        keep = w >= baked.color_skip_weight / counts[ray].clamp(min=1).to(w.dtype)
+        if baked.background == "last_sample":
+            keep |= slot == counts[ray] - 1
+        idx = torch.nonzero(keep, as_tuple=True)[0]
+        if idx.numel():
+            geo = features_at(baked, brick[idx], local[idx])
+            rgb_p[ray[idx], slot[idx]] = baked.decoder(geo, rays.dirs[ray[idx]])
+        k = min(baked.field_color_samples, s_pad)
+        if baked.field is not None and k > 0 and ray.numel():
+            # the heaviest samples of each ray: their colour from the field's own geometry features
+            w_top, s_top = torch.topk(weights, k, dim=-1)
+            r_top, c_top = torch.nonzero(w_top > 0, as_tuple=True)
+            if r_top.numel():
+                sl = s_top[r_top, c_top]
+                mid = 0.5 * (t0_p[r_top, sl] + t1_p[r_top, sl])
+                x = rays.origins[r_top] + rays.dirs[r_top] * mid[:, None]
+                geo = baked.field.density(x)[1].float()
+                rgb_p[r_top, sl] = baked.decoder(geo, rays.dirs[r_top])
+    out = _composite(baked, rays, t0_p, t1_p, sigma_p, rgb_p, counts, return_samples, weights)
+    if window is not None:  # the window's depth where it holds most of the surface
+        live, _, depth, median, acc = window
+        sure = acc > 0.5
+        out.depth[live] = torch.where(sure, depth, out.depth[live])
+        out.depth_median[live] = torch.where(sure, median, out.depth_median[live])
+    return out
+
+
+def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_samples: bool = False,
+                 colour: bool = True) -> RenderOutput:
     """Render any rays from the baked scene in chunks of ``chunk`` rays; the per-ray outputs (and, with
-    ``return_samples``, the kept samples) as ``nsim.rendering.renderer.render_rays`` returns them."""
+    ``return_samples``, the kept samples) as ``nsim.rendering.renderer.render_rays`` returns them. ``colour=False``:
+    depth and accumulation only (a LiDAR; :func:`render_chunk`)."""
     from nsim.rendering.renderer import PER_RAY_FIELDS, _concat, _no_rays, _per_ray_like
 
     if chunk < 1:
@@ -751,10 +847,10 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
     if n == 0:
         return _no_rays(rays, return_samples)
     if return_samples:
-        return _concat([render_chunk(baked, rays[a : a + chunk], True) for a in range(0, n, chunk)])
+        return _concat([render_chunk(baked, rays[a : a + chunk], True, colour) for a in range(0, n, chunk)])
     out = None
     for a in range(0, n, chunk):
-        o = render_chunk(baked, rays[a : a + chunk])
+        o = render_chunk(baked, rays[a : a + chunk], colour=colour)
         if out is None:
             out = _per_ray_like(o, n)
         for f in PER_RAY_FIELDS:

@@ -73,7 +73,7 @@ class ShardRenderer:
             from nsim.rendering.baked import BakedScene
 
             self.baked = BakedScene.load(job["baked_dir"], device=self.device)
-            if self.baked.field_color_samples > 0:  # the heaviest samples' colour from the scene field
+            if self.baked.field_color_samples > 0 or self.baked.field_samples > 0:  # samples from the scene field
                 self.baked = self.baked.with_field(self.model.field)
             if self.cfg.background != "scene":
                 self.baked = dataclasses.replace(self.baked, background=self.cfg.background)
@@ -92,9 +92,10 @@ class ShardRenderer:
 
     # -- rays -> samples -> outputs
     def _render_rays(self, origins: np.ndarray, dirs: np.ndarray, valid: np.ndarray, near: float, far: float,
-                     posed: list, camera=None, cam_to_world=None) -> dict[str, np.ndarray]:
+                     posed: list, camera=None, cam_to_world=None, colour: bool = True) -> dict[str, np.ndarray]:
         """Render world rays ``(N, 3)`` among the ``posed`` people (``HumanSet.joint_transforms``; [] for
-        nobody): rgb (N, 3), range (N,), accumulation (N,), instance (N,)."""
+        nobody): rgb (N, 3), range (N,), accumulation (N,), instance (N,). ``colour=False`` (a LiDAR): a baked
+        scene renders depth and accumulation only (rgb then holds no colour)."""
         import torch
 
         from nsim.rendering.rays import make_rays
@@ -111,7 +112,7 @@ class ShardRenderer:
         if self.baked is not None:
             from nsim.rendering.baked import render_baked
 
-            out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people))
+            out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people), colour=colour)
             if people:  # the people's samples merged with the baked scene's, as with the NeRF's
                 out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg, scene_out=out)
             else:
@@ -165,7 +166,7 @@ class ShardRenderer:
                 row[s.name] = self._write_camera(out_dir, s.name, i, s, res)
             elif isinstance(s, LidarSensor):
                 c = s.config
-                res = self._render_rays(o, d, valid, c.min_range_m, c.max_range_m, posed)
+                res = self._render_rays(o, d, valid, c.min_range_m, c.max_range_m, posed, colour=False)
                 row[s.name] = self._write_lidar(out_dir, s, i, res)
         return row
 
@@ -210,7 +211,7 @@ class ShardRenderer:
             dirs, valid = point_directions(xyz_rec)
             pose = np.asarray(frame["sensor_to_world"], dtype=np.float64)
             o = np.broadcast_to(pose[:3, 3], dirs.shape)
-            res = self._render_rays(o, dirs @ pose[:3, :3].T, valid, 0.0, float("inf"), posed)
+            res = self._render_rays(o, dirs @ pose[:3, :3].T, valid, 0.0, float("inf"), posed, colour=False)
             xyz = points_from_ranges(dirs, res["range"]).astype(np.float32)
             write_points_exr(path.with_suffix(".exr"), {"X": xyz[None, :, 0], "Y": xyz[None, :, 1], "Z": xyz[None, :, 2],
                                                          "range": res["range"].astype(np.float32)[None, :]})

@@ -4,15 +4,17 @@ Input: a ``scene-checkpoint`` (``nsim train-scene``): its field and the occupanc
 time. The core (``nsim.rendering.baked``) puts a brick of lattice points into every occupied cell,
 stores the field's density and geometry features there, drops the bricks that hold no density (and, with
 ``cull_weight``, those no training camera sees: SNeRG's visibility culling, the training rays marched
-through the baked grid itself) and keeps the colour head with the mean appearance embedding; ``nsim render --set method=baked`` marches
-it (``--baked ID``, or baked on demand).
+through the baked grid itself) and keeps the colour head with the mean appearance embedding; ``nsim render --set
+method=baked`` marches it (``--baked ID``, or baked on demand), the scene field volume-rendered only in a window
+around each camera ray's baked surface (``field_samples``), the LiDAR's rays from the baked density alone.
 
 Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
 
     baked.json                 layout, sizes, the marcher's settings, the scene checkpoint's id, bake statistics
     brick_index.npy            (X, Y, Z) int32: brick of each occupancy cell, -1 for none
     density.npy                (N, (B + 1)^3) float32: density (1/m) at each brick's lattice points
-    features.npy               (N, (B + 1)^3, G) float16: the field's geometry features there
+    features.npy               (N, (B + 1)^3, G) float16: the field's geometry features there (G = 0 with
+                               feature_dtype none: the scene field colours the rays, field_samples)
     color_layer<k>_{weight,bias}.npy   the colour head (appearance folded into the first bias)
 
 Resume: the lattice (both lattices with ``cull_voxel_m``: the culled first bake's, then the fine one's
@@ -120,6 +122,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     store = ctx.store
     inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
+    cfg.check()
     key = action_key(inputs, cfg, ctx)
     if not ctx.force and (hit := store.lookup(key)) is not None:
         return Outputs(baked=hit.id, cache_hit=True)

@@ -4,6 +4,7 @@ plain dense twin, files round-trip byte for byte, bad files are one line, people
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -149,7 +150,7 @@ def test_field_colour_for_the_heaviest_samples(baked, model):
     weights[0] = weights[0] * 30.0  # a colour head that shows its features (the untrained one is nearly flat)
     sharp = ColorDecoder([torch.as_tensor(w) for w in weights], [torch.as_tensor(b) for b in biases], 2)
     exact = dataclasses.replace(baked, stop_transmittance=0.0, color_skip_weight=0.0, field_color_samples=10**6,
-                                decoder=sharp)
+                                field_samples=0, decoder=sharp)
     rays = some_rays(120)
     out = render_chunk(exact.with_field(model.field), rays)
     rgb, _, _ = dense_reference(exact, rays, model.field)
@@ -339,3 +340,76 @@ def test_visibility_culling_drops_what_no_camera_sees(baked):
     before, after = render_baked(scene, rays), render_baked(culled, rays)
     torch.testing.assert_close(after.rgb, before.rgb, atol=1e-6, rtol=0)
     torch.testing.assert_close(after.depth, before.depth, atol=1e-5, rtol=0)
+
+
+
+def test_field_samples_render_the_field_in_a_window_around_the_baked_surface(baked, model):
+    """field_samples = m: the baked march decides where a ray's surface is (its median depth) and how much light
+    it stops (accumulation); the field, volume-rendered by itself over m bins in +- field_window_voxels around
+    that depth, its colour and (where the window holds over half the weight) its depth. Against a plain twin (a
+    loop over rays over the dense march's samples); a LiDAR's rays (colour=False) the same depth, no colour."""
+    weights, biases = baked.decoder.arrays()
+    weights[0] = weights[0] * 30.0  # a colour head that shows its features (the untrained one is nearly flat)
+    sharp = ColorDecoder([torch.as_tensor(w) for w in weights], [torch.as_tensor(b) for b in biases], 2)
+    exact = dataclasses.replace(baked, stop_transmittance=0.0, color_skip_weight=0.0, field_color_samples=0,
+                                field_samples=0, decoder=sharp)
+    m, half_voxels = 6, 1.5
+    windowed = dataclasses.replace(exact, field_samples=m, field_window_voxels=half_voxels).with_field(model.field)
+    rays = some_rays(150, seed=11)
+    plain = render_chunk(exact, rays)
+    out = render_chunk(windowed, rays)
+    torch.testing.assert_close(out.accumulation, plain.accumulation, rtol=0, atol=0)
+    # the plain twin
+    _, step_f, _ = steps(exact)
+    half = half_voxels * float(exact.voxel_m.max())
+    rgb, depth = torch.zeros(len(rays), 3), plain.depth.clone()
+    for r in range(len(rays)):
+        n_steps = int(math.ceil(float(rays.far[r] - rays.near[r]) / step_f))
+        t0 = rays.near[r] + torch.arange(n_steps, dtype=torch.float32) * step_f
+        t1 = torch.minimum(t0 + step_f, rays.far[r])
+        x = rays.origins[r] + rays.dirs[r] * (0.5 * (t0 + t1))[:, None]
+        brick, local = locate(exact, x)
+        sigma = torch.where(brick >= 0, density_at(exact, brick.clamp(min=0), local), 0.0)
+        w = volume.render_weights(sigma[None], (t1 - t0)[None])[0][0]
+        acc = float(w.sum())
+        if acc <= volume.EPS:
+            continue
+        centre = float(volume.median_depth(w[None], (0.5 * (t0 + t1))[None])[0])
+        lo, hi = max(centre - half, float(rays.near[r])), min(centre + half, float(rays.far[r]))
+        e = lo + (hi - lo) * torch.arange(m + 1, dtype=torch.float32) / m
+        mid = 0.5 * (e[1:] + e[:-1])
+        with torch.no_grad():
+            sig, geo = model.field.density(rays.origins[r] + rays.dirs[r] * mid[:, None])
+        ww = volume.render_weights(sig[None].float(), (e[1:] - e[:-1])[None])[0][0]
+        c = sharp(geo.float(), rays.dirs[r].expand(m, 3))
+        wsum = float(ww.sum())
+        colour = (ww[:, None] * c).sum(0) / wsum if wsum > volume.EPS else c[m // 2]
+        rgb[r] = acc * colour
+        if wsum > 0.5:
+            depth[r] = float((ww * mid).sum()) / wsum
+    torch.testing.assert_close(out.rgb, rgb, rtol=0, atol=1e-5)
+    torch.testing.assert_close(out.depth, depth, rtol=0, atol=1e-4)
+    assert float((out.rgb - plain.rgb).abs().max()) > 1e-5  # the field's colours, not the baked features'
+    lidar = render_chunk(windowed, rays, colour=False)  # a LiDAR's rays: the same geometry, no colour
+    assert torch.equal(lidar.depth, out.depth) and torch.equal(lidar.accumulation, out.accumulation)
+    assert torch.equal(lidar.rgb, torch.zeros_like(lidar.rgb))
+
+
+def test_no_features_with_field_samples(model, grid, baked, tmp_path):
+    """feature_dtype none: no colour features stored (the field colours every camera ray), the same render as a
+    bake with them; without field_samples it is a one-line config error, and such files do not load."""
+    from nsim.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="field_samples"):
+        bake(model, grid, BakeConfig(feature_dtype="none", field_samples=0))
+    lean = bake(model, grid, BakeConfig(voxel_m=0.05, prune_density=0.0, feature_dtype="none", field_samples=2))
+    assert lean.features.shape == (*baked.density.shape, 0) and torch.equal(lean.density, baked.density)
+    lean.save(tmp_path)
+    back = BakedScene.load(tmp_path).with_field(model.field)
+    rays = some_rays(100)
+    full = dataclasses.replace(baked, field_samples=2).with_field(model.field)
+    assert torch.equal(render_baked(back, rays).rgb, render_baked(full, rays).rgb)
+    doc = json.loads((tmp_path / "baked.json").read_text())
+    (tmp_path / "baked.json").write_text(json.dumps({**doc, "field_samples": 0}))
+    with pytest.raises(InputError, match="no features"):
+        BakedScene.load(tmp_path)
