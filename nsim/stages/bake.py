@@ -6,7 +6,8 @@ stores the field's density and geometry features there, drops the bricks that ho
 ``cull_weight``, those no training camera sees: SNeRG's visibility culling, the training rays marched
 through the baked grid itself) and keeps the colour head with the mean appearance embedding; ``nsim render --set
 method=baked`` marches it (``--baked ID``, or baked on demand), the scene field volume-rendered only in a window
-around each camera ray's baked surface (``field_samples``), the LiDAR's rays from the baked density alone.
+around each camera ray's baked surface (``field_samples``; a LiDAR's rays take the window's depth from the
+field's density, with no colour).
 
 Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
 
