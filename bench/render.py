@@ -575,7 +575,7 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
     model = load_model(scene.path, "cpu")
     grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"))
     baked = BakedScene.load(store.get(baked_id).path)
-    if baked.field_samples > 0 or baked.field_color_samples > 0:  # as the render stage attaches it
+    if baked.uses_field:  # as the render stage attaches it
         baked = baked.with_field(model.field)
     cfg = render.Config()
     rig = adapt_rig(Rig.load(SPOT), dataclasses.replace(cfg, image_scale=args.image_scale))
@@ -599,7 +599,7 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
     t0 = time.perf_counter()
     render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays)
     nerf_s = time.perf_counter() - t0
-    # as the stage renders them: the cameras with colour, the LiDAR with the baked density alone
+    # as the stage renders them: the cameras with colour, the LiDAR without (depth only)
     t0 = time.perf_counter()
     render_baked(baked, cams, cfg.chunk_rays)
     cams_s = time.perf_counter() - t0

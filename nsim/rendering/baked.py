@@ -42,11 +42,12 @@ Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     whose weight reaches ``color_skip_weight / n`` (``n`` the ray's kept samples): the skipped
     ones count as black, so a ray's colour is off by at most ``color_skip_weight`` per channel.
     Colour from the scene field (the field attached with ``with_field``; ``nsim render`` attaches the
-    checkpoint's): with ``field_samples = k > 0`` (instant-NGP's division of labour: a baked structure decides
-    where a ray's light comes from, the field is queried only where it does) the baked weights of each camera
-    ray are cut into ``k`` equal parts of its accumulation and each part takes the field's colour at its middle
-    quantile (``_field_colours``): ``k`` field queries a ray, where its light comes from, instead of the
-    NeRF's ``final_samples`` (and its proposal samples); accumulation and depth stay the baked ones. Otherwise, with ``field_color_samples = k > 0``,
+    checkpoint's): with ``field_samples = m > 0`` (instant-NGP's division of labour: the baked structure decides
+    where a ray's light comes from, the field is queried only there) the field is volume-rendered by itself over
+    ``m`` bins within ``field_window_voxels`` of each ray's baked median depth (``_field_window``): ``m`` field
+    queries a ray instead of the NeRF's ``final_samples`` and proposal samples. The window's colour becomes the
+    ray's (times the baked accumulation) and its depth replaces the baked one where the window holds most of the
+    surface. Otherwise, with ``field_color_samples = k > 0``,
     the ``k`` heaviest samples of each ray take the field's colour at their midpoints and the rest the
     interpolated features' (configs/bake/default.yaml has the measurements of both). Rays rendered without
     colour (``colour=False``: a LiDAR) decode none: their depth is the window's (the field's density alone)
@@ -247,9 +248,15 @@ class BakedScene:
                                    decoder=self.decoder.moved(device),
                                    background_rgb=self.background_rgb.to(device))
 
+    @property
+    def uses_field(self) -> bool:
+        """Whether rendering queries the scene field (``field_samples`` or ``field_color_samples``): then a
+        renderer attaches it (:meth:`with_field`)."""
+        return self.field_samples > 0 or self.field_color_samples > 0
+
     def with_field(self, field) -> BakedScene:
         """This scene with the ``SceneField`` it was baked from attached (on the scene's device), for
-        ``field_color_samples``: the colour of each ray's heaviest samples from the field's own features."""
+        ``field_samples`` / ``field_color_samples`` (:attr:`uses_field`)."""
         return dataclasses.replace(self, field=field)
 
     def nbytes(self) -> int:
@@ -717,14 +724,12 @@ def _march(baked: BakedScene, rays: Rays) -> tuple[Tensor, ...]:
 
 
 def _composite(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, sigma_p: Tensor, rgb_p: Tensor,
-               counts: Tensor, return_samples: bool, weights: Tensor | None = None) -> RenderOutput:
-    """Volume rendering of padded ``(R, S)`` samples (``counts (R,)`` kept, the rest empty at the far end) as
-    ``SceneModel.render_grid`` does it: weights, the background (``last_sample``: each ray's last kept sample),
-    normalised expected depth, median depth, accumulation."""
+               counts: Tensor, return_samples: bool, weights: Tensor) -> RenderOutput:
+    """Volume rendering of padded ``(R, S)`` samples (``counts (R,)`` kept, the rest empty at the far end) with
+    their ``weights`` (``volume.render_weights``) as ``SceneModel.render_grid`` does it: the background
+    (``last_sample``: each ray's last kept sample), normalised expected depth, median depth, accumulation."""
     n = len(rays)
     device = rays.origins.device
-    if weights is None:
-        weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
     acc = weights.sum(-1)
     const = baked.background_rgb.to(device).expand(n, 3)
     if baked.background == "last_sample" and n:

@@ -73,7 +73,7 @@ class ShardRenderer:
             from nsim.rendering.baked import BakedScene
 
             self.baked = BakedScene.load(job["baked_dir"], device=self.device)
-            if self.baked.field_color_samples > 0 or self.baked.field_samples > 0:  # samples from the scene field
+            if self.baked.uses_field:
                 self.baked = self.baked.with_field(self.model.field)
             if self.cfg.background != "scene":
                 self.baked = dataclasses.replace(self.baked, background=self.cfg.background)
