@@ -572,9 +572,10 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
 
     store = ctx.store
     scene = store.get(scene_id)
-    model = load_model(scene.path, "cpu")
-    grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"))
-    baked = BakedScene.load(store.get(baked_id).path)
+    dev = torch.device(ctx.device)
+    model = load_model(scene.path, dev)
+    grid = OccupancyGrid.load(scene.file("occupancy_grid.npy")).to(dev)
+    baked = BakedScene.load(store.get(baked_id).path, dev)
     if baked.uses_field:  # as the render stage attaches it
         baked = baked.with_field(model.field)
     cfg = render.Config()
@@ -588,24 +589,31 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
         d = np.concatenate([x.reshape(-1, 3) for x in d])
         d = np.where(np.isfinite(d).all(-1, keepdims=True), d, [0.0, 0.0, 1.0])
         return make_rays(torch.as_tensor(o, dtype=torch.float32), torch.as_tensor(d, dtype=torch.float32), sc.near_m,
-                         sc.far_m, model.aabb if sc.clip_rays_to_box else None)
+                         sc.far_m, model.aabb.cpu() if sc.clip_rays_to_box else None)
 
     cams = rays_of([s for s in rig.sensors if s.type != "lidar"])
     lidar = rays_of([s for s in rig.sensors if s.type == "lidar"])
     rays = Rays(*(torch.cat([getattr(cams, f), getattr(lidar, f)]) for f in ("origins", "dirs", "near", "far")))
     g = torch.Generator().manual_seed(0)
-    sub = rays[torch.randperm(len(rays), generator=g)[: min(len(rays), args.nerf_rays)]]
-    render_baked(baked, sub[:2048], cfg.chunk_rays)  # warm-up: first-call allocations
-    t0 = time.perf_counter()
-    render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays)
-    nerf_s = time.perf_counter() - t0
+    sub = rays[torch.randperm(len(rays), generator=g)[: min(len(rays), args.nerf_rays)]].to(dev)
+    cams, lidar = cams.to(dev), lidar.to(dev)
+
+    def timed(fn) -> float:  # wall seconds, the device's queue drained at both ends
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+        t = time.perf_counter()
+        fn()
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+        return time.perf_counter() - t
+
+    # warm-up: first-call allocations (and CUDA's kernels)
+    timed(lambda: render_baked(baked, sub[:2048], cfg.chunk_rays))
+    timed(lambda: render_rays(model, sub[:2048], cfg.method, grid, cfg.march, cfg.chunk_rays))
+    nerf_s = timed(lambda: render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays))
     # as the stage renders them: the cameras with colour, the LiDAR without (depth only)
-    t0 = time.perf_counter()
-    render_baked(baked, cams, cfg.chunk_rays)
-    cams_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    render_baked(baked, lidar, cfg.chunk_rays, colour=False)
-    baked_s = cams_s + time.perf_counter() - t0
+    cams_s = timed(lambda: render_baked(baked, cams, cfg.chunk_rays))
+    baked_s = cams_s + timed(lambda: render_baked(baked, lidar, cfg.chunk_rays, colour=False))
     return {"nerf_rays_s": len(sub) / nerf_s, "baked_rays_s": len(rays) / baked_s, "nerf_rays": len(sub),
             "baked_rays": len(rays), "baked_camera_rays_s": len(cams) / cams_s,
             "baked_lidar_rays_s": len(lidar) / (baked_s - cams_s), "lidar_rays": len(lidar),
@@ -716,13 +724,14 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
     res["speed"]["tick_image_scale"] = args.tick_scale
     sp = res["speed"]
     sp["speedup"] = sp["baked_rays_s"] / sp["nerf_rays_s"]
-    print(f"speed (2 threads): NeRF {sp['nerf_rays_s']:.0f} rays/s, baked {sp['baked_rays_s']:.0f} rays/s "
+    where = "2 threads" if ctx.device == "cpu" else ctx.device
+    print(f"speed ({where}): NeRF {sp['nerf_rays_s']:.0f} rays/s, baked {sp['baked_rays_s']:.0f} rays/s "
           f"(x{sp['speedup']:.1f}); Spot tick (5 fisheyes at x{args.tick_scale} + LiDAR 16x1800) through the stage "
           f"{sp['spot_tick_s']:.2f} s, LiDAR sweep alone {sp['lidar_sweep_s']:.2f} s", flush=True)
     res["summary"] = {"nerf_rays_s": sp["nerf_rays_s"], "baked_rays_s": sp["baked_rays_s"], "speedup": sp["speedup"],
                       "psnr_baked_vs_nerf": h["psnr_vs_nerf"], "spot_tick_s": sp["spot_tick_s"],
                       "lidar_sweep_s": sp["lidar_sweep_s"], "bake_s": res["bake"]["bake_s"],
-                      "bake_mb": res["bake"]["bake_mb"]}
+                      "bake_mb": res["bake"]["bake_mb"], "device": ctx.device}
     # issue 25's bars (the goals: the tick and the sweep at 640x480 on 2 cores)
     res["bars"] = {"speedup_ge_10": sp["speedup"] >= 10.0,
                    "heldout_psnr_within_0.5_db": h["baked_psnr"] >= h["nerf_psnr"] - 0.5,
@@ -754,6 +763,8 @@ def main() -> None:
     ap.add_argument("--culling-scale", type=float, default=None,
                     help="camera scale of the culling section (default: --image-scale)")
     ap.add_argument("--culling-reps", type=int, default=None, help="timed repetitions per mode (default 3, 2 quick)")
+    ap.add_argument("--device", default="cpu", help="where to render and time (cpu, cuda, auto; issue 25's bars are "
+                                                   "on 2 CPU cores)")
     ap.add_argument("--baked", action="store_true", help="only the baked scene against the NeRF (nsim bake, "
                                                          "method: baked): speed, images, depth, LiDAR, bake cost")
     ap.add_argument("--capture", default=None, help="the capture the --scene was trained on (default: made here "
@@ -782,7 +793,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ws = args.workspace or Path(tmp) / "ws"
         store = Store(ws)
-        ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
+        ctx = RunContext(store=store, device_spec=args.device, seed=0, progress=False)
         cap_cfg = load_config(capture.Config, stage="capture", preset="tiny" if q else "default", overrides=["video=false"])
         if args.capture is not None:  # the capture the scene was trained on (its held-out frames, its room)
             cap_id = store.resolve(args.capture, kind="capture")

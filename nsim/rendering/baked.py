@@ -797,7 +797,8 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
     weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
     window = None
     rgb_p = torch.zeros(n, s_pad, 3, device=device)
-    if baked.field is not None and baked.field_samples > 0 and ray.numel():
+    windowed = baked.field is not None and baked.field_samples > 0
+    if windowed and ray.numel():
         # the field's own colour and depth from a window around the baked surface (a LiDAR's: its depth alone);
         # every sample of a ray takes the window's colour: the ray's is acc * colour + (1 - acc) * background
         live = torch.nonzero(weights.sum(-1) > volume.EPS, as_tuple=True)[0]
@@ -805,7 +806,7 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
         window = (live, *_field_window(baked, rays[live], volume.median_depth(weights[live], mid_p[live]), colour))
         if colour:
             rgb_p[live] = window[1][:, None, :].expand(-1, s_pad, -1)
-    if colour and window is None:
+    if colour and not windowed:  # (a windowed chunk whose rays cross no brick has nothing to colour)
         if baked.features.shape[-1] == 0:
             raise ValueError("render_chunk: a baked scene without features (feature_dtype none) needs the scene field "
                              "attached (with_field) and field_samples > 0")

@@ -409,7 +409,31 @@ def test_no_features_with_field_samples(model, grid, baked, tmp_path):
     rays = some_rays(100)
     full = dataclasses.replace(baked, field_samples=2).with_field(model.field)
     assert torch.equal(render_baked(back, rays).rgb, render_baked(full, rays).rgb)
+    # a chunk whose rays all cross no brick (a fisheye looking where nothing was baked): the background, no error
+    empty = render_baked(back, make_rays(torch.full((5, 3), -50.0), torch.tensor([[-1.0, 0.0, 0.0]]).expand(5, 3),
+                                          0.05, 30.0, None))
+    assert torch.equal(empty.accumulation, torch.zeros(5))
+    torch.testing.assert_close(empty.rgb, back.background_rgb.expand(5, 3))
     doc = json.loads((tmp_path / "baked.json").read_text())
     (tmp_path / "baked.json").write_text(json.dumps({**doc, "field_samples": 0}))
     with pytest.raises(InputError, match="no features"):
         BakedScene.load(tmp_path)
+
+
+@pytest.mark.gpu
+def test_cpu_and_cuda_render_the_same(baked, model):
+    """The baked march, the field window and the LiDAR's colourless rays give the same result on CUDA as on the
+    CPU (the scene and its field moved together; float32 on both)."""
+    import copy
+
+    windowed = dataclasses.replace(baked, field_samples=6, field_window_voxels=1.5).with_field(model.field)
+    rays = some_rays(400, seed=21)
+    on_cuda = windowed.to("cuda").with_field(copy.deepcopy(model.field).to("cuda"))
+    rays_cuda = rays.to("cuda")
+    for colour in (True, False):
+        cpu = render_baked(windowed, rays, colour=colour)
+        gpu = render_baked(on_cuda, rays_cuda, colour=colour)
+        assert gpu.depth.device.type == "cuda"
+        torch.testing.assert_close(gpu.accumulation.cpu(), cpu.accumulation, rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(gpu.rgb.cpu(), cpu.rgb, rtol=1e-3, atol=1e-3)
+        torch.testing.assert_close(gpu.depth.cpu(), cpu.depth, rtol=1e-3, atol=1e-3)

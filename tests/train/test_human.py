@@ -304,3 +304,20 @@ def test_the_losses_lead_a_shifted_pose_back(tiny_trained):
     # measured: 3.80 cm before (the 4 cm shift less its mean over the frames), 1.7 after 80 steps
     assert before == pytest.approx(3.8, abs=0.01)
     assert after < 0.6 * before, (before, after)
+
+
+@pytest.mark.gpu
+def test_cpu_and_cuda_agree_with_refinement(capture):
+    """From the same weights, a refinement step on CUDA gives the CPU's loss and corrections (the body-pose
+    corrections live on the trainer's device)."""
+    cfg = micro_cfg(optim={"steps": 4}, refine={"lr": 0.01, "start_fraction": 0.0})
+    cpu = HumanTrainer(capture, cfg, device="cpu", seed=3)
+    gpu = HumanTrainer(capture, cfg, device="cuda", seed=3)
+    gpu.model.load_state_dict(cpu.model.state_dict())
+    gpu.refine.load_state_dict(cpu.refine.state_dict())
+    assert gpu.refine.rotation.device.type == "cuda"
+    for _ in range(2):
+        loss_c, loss_g = cpu.train_step().loss, gpu.train_step().loss
+        assert abs(loss_c - loss_g) < 1e-3 * max(1.0, abs(loss_c))
+    torch.testing.assert_close(gpu.refine.rotation.detach().cpu(), cpu.refine.rotation.detach(), atol=1e-4, rtol=1e-3)
+    np.testing.assert_allclose(gpu.refined_poses(), cpu.refined_poses(), atol=1e-4)
