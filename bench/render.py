@@ -612,7 +612,8 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
     timed(lambda: render_rays(model, sub[:2048], cfg.method, grid, cfg.march, cfg.chunk_rays))
     nerf_s = timed(lambda: render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays))
     # as the stage renders them: the cameras with colour, the LiDAR without (depth only)
-    cams_s = timed(lambda: render_baked(baked, cams, cfg.chunk_rays))
+    nerf = lambda r: render_rays(model, r, cfg.method, grid, cfg.march, cfg.chunk_rays)  # noqa: E731
+    cams_s = timed(lambda: render_baked(baked, cams, cfg.chunk_rays, fallback=nerf))  # nerf_fallback_share's rays
     baked_s = cams_s + timed(lambda: render_baked(baked, lidar, cfg.chunk_rays, colour=False))
     return {"nerf_rays_s": len(sub) / nerf_s, "baked_rays_s": len(rays) / baked_s, "nerf_rays": len(sub),
             "baked_rays": len(rays), "baked_camera_rays_s": len(cams) / cams_s,

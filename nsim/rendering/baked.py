@@ -113,6 +113,12 @@ class BakeConfig:
                                                     "surface, volume-rendered for its colour and depth (0: "
                                                     "field_color_samples decides)")
     field_window_voxels: float = param(2.0, gt=0.0, le=16.0, help="field_samples: the window's half width in voxels")
+    nerf_fallback_share: float | None = param(None, gt=0.0, le=1.0, help="camera rays whose baked weight beyond "
+                                                "nerf_fallback_voxels of their median depth reaches this share (split "
+                                                "between surfaces: depth edges) are rendered by the NeRF itself (null: "
+                                                "none)")
+    nerf_fallback_voxels: float = param(4.0, gt=0.0, le=16.0, help="nerf_fallback_share: the half width (voxels) "
+                                                                  "around a ray's median depth that counts as one surface")
     cull_weight: float | None = param(None, gt=0.0, lt=1.0, help="visibility culling: drop bricks whose volume-"
                                                               "rendering weight along every training ray stays below "
                                                               "this (null: keep every brick)")
@@ -209,6 +215,8 @@ class BakedScene:
     field_color_samples: int = 0
     field_samples: int = 0
     field_window_voxels: float = 1.5
+    nerf_fallback_share: float | None = None
+    nerf_fallback_voxels: float = 4.0
     field: nn.Module | None = None
     block_occupied: Tensor = dataclasses.field(init=False, repr=False)
 
@@ -295,6 +303,8 @@ class BakedScene:
             "field_color_samples": self.field_color_samples,
             "field_samples": self.field_samples,
             "field_window_voxels": self.field_window_voxels,
+            "nerf_fallback_share": self.nerf_fallback_share,
+            "nerf_fallback_voxels": self.nerf_fallback_voxels,
             "background": self.background,
             "background_rgb": [float(c) for c in self.background_rgb.cpu()],
             "layout": "brick_index[i, j, k]: brick of occupancy cell (i, j, k) or -1; density[n, (a * (B + 1) + b) * "
@@ -347,7 +357,8 @@ class BakedScene:
                 raise ValueError("aabb_m: expected [[x0, y0, z0], [x1, y1, z1]] with x1 > x0 ...")
             known = {"format", "units", "frame", "aabb_m", "grid_shape", "bricks", "bricks_per_side", "voxel_m", "geo_dim",
                      "feature_dtype", "sh_degree", "decoder_layers", "step_voxels", "block_cells", "stop_transmittance",
-                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "background", "background_rgb", "layout"}
+                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "nerf_fallback_share", "nerf_fallback_voxels", "background",
+                     "background_rgb", "layout"}
             baked = cls(aabb=aabb, brick_index=torch.as_tensor(index), density=torch.as_tensor(density),
                         features=torch.as_tensor(features), bricks_per_side=b, decoder=decoder,
                         step_voxels=float(doc["step_voxels"]), block_cells=int(doc["block_cells"]),
@@ -356,6 +367,9 @@ class BakedScene:
                         field_color_samples=int(doc.get("field_color_samples", 0)),
                         field_samples=int(doc.get("field_samples", 0)),
                         field_window_voxels=float(doc.get("field_window_voxels", 1.5)),
+                        nerf_fallback_share=(None if doc.get("nerf_fallback_share") is None
+                                             else float(doc["nerf_fallback_share"])),
+                        nerf_fallback_voxels=float(doc.get("nerf_fallback_voxels", 4.0)),
                         background_rgb=torch.tensor(doc["background_rgb"], dtype=torch.float32),
                         meta={k: v for k, v in doc.items() if k not in known})
         except (KeyError, TypeError, ValueError) as exc:
@@ -469,7 +483,8 @@ def assemble(plan: BakePlan, density: Tensor, features: Tensor, decoder: ColorDe
                       stop_transmittance=cfg.stop_transmittance, color_skip_weight=cfg.color_skip_weight,
                       background=background, background_rgb=torch.as_tensor(background_rgb, dtype=torch.float32),
                       meta=stats, field_color_samples=cfg.field_color_samples, field_samples=cfg.field_samples,
-                      field_window_voxels=cfg.field_window_voxels)
+                      field_window_voxels=cfg.field_window_voxels, nerf_fallback_share=cfg.nerf_fallback_share,
+                      nerf_fallback_voxels=cfg.nerf_fallback_voxels)
 
 
 def brick_visibility(baked: BakedScene, rays: Rays, chunk: int = 65536) -> Tensor:
@@ -779,9 +794,12 @@ def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = 
 
 
 @torch.no_grad()
-def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, colour: bool = True) -> RenderOutput:
+def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, colour: bool = True,
+                 fallback=None) -> RenderOutput:
     """Render ``rays`` (all at once: chunk outside) from the baked scene (module docstring). ``colour=False``
-    (a LiDAR): depth and accumulation, no colour decoded (rgb is the background)."""
+    (a LiDAR): depth and accumulation, no colour decoded (rgb is the background). fallback: the NeRF's renderer
+    (``rays -> RenderOutput``) for the camera rays ``nerf_fallback_share`` flags (:func:`split_rays`); their
+    per-ray outputs are the NeRF's (not with ``return_samples``: the people's merge needs the baked samples)."""
     n = len(rays)
     device = rays.origins.device
     ray, t0, t1, sigma, brick, local = _march(baked, rays)
@@ -837,11 +855,31 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
         sure = acc > 0.5
         out.depth[live] = torch.where(sure, depth, out.depth[live])
         out.depth_median[live] = torch.where(sure, median, out.depth_median[live])
+    if fallback is not None and colour and not return_samples and baked.nerf_fallback_share is not None:
+        split = torch.nonzero(split_rays(baked, weights, 0.5 * (t0_p + t1_p)), as_tuple=True)[0]
+        if split.numel():
+            from nsim.rendering.renderer import PER_RAY_FIELDS
+
+            nerf = fallback(rays[split])
+            for f in PER_RAY_FIELDS:  # (copies: the background may be one colour expanded over the rays)
+                mixed = getattr(out, f).clone()
+                mixed[split] = getattr(nerf, f).to(mixed.dtype)
+                setattr(out, f, mixed)
     return out
 
 
+def split_rays(baked: BakedScene, weights: Tensor, mid: Tensor) -> Tensor:
+    """``(R,)`` bool: rays whose baked weights ``(R, S)`` (sample midpoints ``mid (R, S)``) put at least
+    ``nerf_fallback_share`` of their sum farther than ``nerf_fallback_voxels`` from their median depth: light from
+    two surfaces (a depth edge), which one field window around the median cannot reproduce."""
+    acc = weights.sum(-1)
+    half = baked.nerf_fallback_voxels * float(baked.voxel_m.max())
+    far = (mid - volume.median_depth(weights, mid)[:, None]).abs() > half
+    return (acc > volume.EPS) & ((weights * far).sum(-1) >= baked.nerf_fallback_share * acc)
+
+
 def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_samples: bool = False,
-                 colour: bool = True) -> RenderOutput:
+                 colour: bool = True, fallback=None) -> RenderOutput:
     """Render any rays from the baked scene in chunks of ``chunk`` rays; the per-ray outputs (and, with
     ``return_samples``, the kept samples) as ``nsim.rendering.renderer.render_rays`` returns them. ``colour=False``:
     depth and accumulation only (a LiDAR; :func:`render_chunk`)."""
@@ -856,7 +894,7 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
         return _concat([render_chunk(baked, rays[a : a + chunk], True, colour) for a in range(0, n, chunk)])
     out = None
     for a in range(0, n, chunk):
-        o = render_chunk(baked, rays[a : a + chunk], colour=colour)
+        o = render_chunk(baked, rays[a : a + chunk], colour=colour, fallback=fallback)
         if out is None:
             out = _per_ray_like(o, n)
         for f in PER_RAY_FIELDS:
@@ -867,4 +905,4 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
 
 __all__ = ["BakeConfig", "BakePlan", "BakedScene", "ColorDecoder", "assemble", "bake", "bake_passes",
            "brick_visibility", "cull", "decoder_of", "density_at", "evaluate_lattice", "features_at", "finish_bake",
-           "locate", "plan_bake", "render_baked", "render_chunk", "training_rays"]
+           "locate", "plan_bake", "render_baked", "render_chunk", "split_rays", "training_rays"]

@@ -112,7 +112,11 @@ class ShardRenderer:
         if self.baked is not None:
             from nsim.rendering.baked import render_baked
 
-            out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people), colour=colour)
+            nerf = None
+            if self.baked.nerf_fallback_share is not None:  # the split rays (depth edges) from the NeRF itself
+                nerf = lambda r: render_rays(self.model, r, "proposal", self.grid, cfg.march, cfg.chunk_rays)  # noqa: E731
+            out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people), colour=colour,
+                               fallback=nerf)
             if people:  # the people's samples merged with the baked scene's, as with the NeRF's
                 out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg, scene_out=out)
             else:

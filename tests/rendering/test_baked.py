@@ -420,6 +420,53 @@ def test_no_features_with_field_samples(model, grid, baked, tmp_path):
         BakedScene.load(tmp_path)
 
 
+def test_split_rays_fall_back_to_the_nerf(baked, model):
+    """nerf_fallback_share: camera rays whose baked weight is split between surfaces (a share of it beyond
+    nerf_fallback_voxels of the median depth) take the NeRF's outputs; the other rays, a LiDAR's rays and rays
+    rendered with their samples (the people's merge) are the baked scene's as before."""
+    from nsim.rendering.baked import _march, split_rays
+    from nsim.rendering.renderer import PER_RAY_FIELDS, render_rays
+
+    plain = dataclasses.replace(baked, field_samples=4).with_field(model.field)
+    hybrid = dataclasses.replace(plain, nerf_fallback_share=0.2, nerf_fallback_voxels=1.0)
+    rays = some_rays(300, seed=8)
+    calls = []
+
+    def nerf(r):
+        calls.append(len(r))
+        return render_rays(model, r, "proposal")
+
+    before = render_baked(plain, rays, fallback=nerf)
+    assert not calls  # no share set: no fallback
+    after = render_baked(hybrid, rays, fallback=nerf)
+    ray, t0, t1, sigma, _, _ = _march(hybrid, rays)
+    counts = torch.bincount(ray, minlength=len(rays))
+    slot = torch.arange(len(ray)) - (torch.cumsum(counts, 0) - counts)[ray]
+    s_pad = int(counts.max())
+    w = volume.render_weights(torch.zeros(len(rays), s_pad).index_put((ray, slot), sigma),
+                              rays.far[:, None].expand(-1, s_pad).clone().index_put((ray, slot), t1 - t0))[0]
+    mid = rays.far[:, None].expand(-1, s_pad).clone().index_put((ray, slot), 0.5 * (t0 + t1))
+    split = split_rays(hybrid, w, mid)
+    assert 0 < int(split.sum()) < len(rays) and calls == [int(split.sum())]
+    # the plain twin of the rule: the share of each ray's weight beyond 1 voxel of its median depth
+    for r in range(len(rays)):
+        wr, mr = w[r], mid[r]
+        if float(wr.sum()) <= volume.EPS:
+            assert not split[r]
+            continue
+        med = float(volume.median_depth(wr[None], mr[None])[0])
+        beyond = float(wr[(mr - med).abs() > float(hybrid.voxel_m.max())].sum())
+        assert bool(split[r]) == (beyond >= 0.2 * float(wr.sum()))
+    reference = render_rays(model, rays[torch.nonzero(split, as_tuple=True)[0]], "proposal")
+    for f in PER_RAY_FIELDS:
+        torch.testing.assert_close(getattr(after, f)[split], getattr(reference, f), rtol=0, atol=1e-6)
+        assert torch.equal(getattr(after, f)[~split], getattr(before, f)[~split])
+    lidar = render_baked(hybrid, rays, colour=False, fallback=nerf)
+    assert torch.equal(lidar.depth, render_baked(plain, rays, colour=False).depth) and len(calls) == 1
+    with_samples = render_baked(hybrid, rays, return_samples=True, fallback=nerf)
+    assert torch.equal(with_samples.rgb, before.rgb) and len(calls) == 1
+
+
 @pytest.mark.gpu
 def test_cpu_and_cuda_render_the_same(baked, model):
     """The baked march, the field window and the LiDAR's colourless rays give the same result on CUDA as on the
