@@ -119,6 +119,9 @@ class BakeConfig:
                                                 "none)")
     nerf_fallback_voxels: float = param(4.0, gt=0.0, le=16.0, help="nerf_fallback_share: the half width (voxels) "
                                                                   "around a ray's median depth that counts as one surface")
+    nerf_fallback_accumulation: float | None = param(None, gt=0.0, le=1.0, help="camera rays whose baked "
+                                                     "accumulation stays below this (no surface in the bake: space the "
+                                                     "culling dropped) are rendered by the NeRF itself (null: none)")
     cull_weight: float | None = param(None, gt=0.0, lt=1.0, help="visibility culling: drop bricks whose volume-"
                                                               "rendering weight along every training ray stays below "
                                                               "this (null: keep every brick)")
@@ -217,6 +220,7 @@ class BakedScene:
     field_window_voxels: float = 1.5
     nerf_fallback_share: float | None = None
     nerf_fallback_voxels: float = 4.0
+    nerf_fallback_accumulation: float | None = None
     field: nn.Module | None = None
     block_occupied: Tensor = dataclasses.field(init=False, repr=False)
 
@@ -262,6 +266,12 @@ class BakedScene:
         renderer attaches it (:meth:`with_field`)."""
         return self.field_samples > 0 or self.field_color_samples > 0
 
+    @property
+    def falls_back(self) -> bool:
+        """Whether some camera rays are rendered by the NeRF (``nerf_fallback_share`` or
+        ``nerf_fallback_accumulation``): then a renderer passes it (``render_baked``'s ``fallback``)."""
+        return self.nerf_fallback_share is not None or self.nerf_fallback_accumulation is not None
+
     def with_field(self, field) -> BakedScene:
         """This scene with the ``SceneField`` it was baked from attached (on the scene's device), for
         ``field_samples`` / ``field_color_samples`` (:attr:`uses_field`)."""
@@ -305,6 +315,7 @@ class BakedScene:
             "field_window_voxels": self.field_window_voxels,
             "nerf_fallback_share": self.nerf_fallback_share,
             "nerf_fallback_voxels": self.nerf_fallback_voxels,
+            "nerf_fallback_accumulation": self.nerf_fallback_accumulation,
             "background": self.background,
             "background_rgb": [float(c) for c in self.background_rgb.cpu()],
             "layout": "brick_index[i, j, k]: brick of occupancy cell (i, j, k) or -1; density[n, (a * (B + 1) + b) * "
@@ -357,7 +368,7 @@ class BakedScene:
                 raise ValueError("aabb_m: expected [[x0, y0, z0], [x1, y1, z1]] with x1 > x0 ...")
             known = {"format", "units", "frame", "aabb_m", "grid_shape", "bricks", "bricks_per_side", "voxel_m", "geo_dim",
                      "feature_dtype", "sh_degree", "decoder_layers", "step_voxels", "block_cells", "stop_transmittance",
-                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "nerf_fallback_share", "nerf_fallback_voxels", "background",
+                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "nerf_fallback_share", "nerf_fallback_voxels", "nerf_fallback_accumulation", "background",
                      "background_rgb", "layout"}
             baked = cls(aabb=aabb, brick_index=torch.as_tensor(index), density=torch.as_tensor(density),
                         features=torch.as_tensor(features), bricks_per_side=b, decoder=decoder,
@@ -370,6 +381,8 @@ class BakedScene:
                         nerf_fallback_share=(None if doc.get("nerf_fallback_share") is None
                                              else float(doc["nerf_fallback_share"])),
                         nerf_fallback_voxels=float(doc.get("nerf_fallback_voxels", 4.0)),
+                        nerf_fallback_accumulation=(None if doc.get("nerf_fallback_accumulation") is None
+                                                    else float(doc["nerf_fallback_accumulation"])),
                         background_rgb=torch.tensor(doc["background_rgb"], dtype=torch.float32),
                         meta={k: v for k, v in doc.items() if k not in known})
         except (KeyError, TypeError, ValueError) as exc:
@@ -484,7 +497,8 @@ def assemble(plan: BakePlan, density: Tensor, features: Tensor, decoder: ColorDe
                       background=background, background_rgb=torch.as_tensor(background_rgb, dtype=torch.float32),
                       meta=stats, field_color_samples=cfg.field_color_samples, field_samples=cfg.field_samples,
                       field_window_voxels=cfg.field_window_voxels, nerf_fallback_share=cfg.nerf_fallback_share,
-                      nerf_fallback_voxels=cfg.nerf_fallback_voxels)
+                      nerf_fallback_voxels=cfg.nerf_fallback_voxels,
+                      nerf_fallback_accumulation=cfg.nerf_fallback_accumulation)
 
 
 def brick_visibility(baked: BakedScene, rays: Rays, chunk: int = 65536) -> Tensor:
@@ -798,7 +812,8 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
                  fallback=None) -> RenderOutput:
     """Render ``rays`` (all at once: chunk outside) from the baked scene (module docstring). ``colour=False``
     (a LiDAR): depth and accumulation, no colour decoded (rgb is the background). fallback: the NeRF's renderer
-    (``rays -> RenderOutput``) for the camera rays ``nerf_fallback_share`` flags (:func:`split_rays`); their
+    (``rays -> RenderOutput``) for the camera rays ``nerf_fallback_share`` and ``nerf_fallback_accumulation`` flag
+    (:func:`fallback_rays`); their
     per-ray outputs are the NeRF's (not with ``return_samples``: the people's merge needs the baked samples)."""
     n = len(rays)
     device = rays.origins.device
@@ -855,8 +870,8 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
         sure = acc > 0.5
         out.depth[live] = torch.where(sure, depth, out.depth[live])
         out.depth_median[live] = torch.where(sure, median, out.depth_median[live])
-    if fallback is not None and colour and not return_samples and baked.nerf_fallback_share is not None:
-        split = torch.nonzero(split_rays(baked, weights, 0.5 * (t0_p + t1_p)), as_tuple=True)[0]
+    if fallback is not None and colour and not return_samples and baked.falls_back:
+        split = torch.nonzero(fallback_rays(baked, weights, 0.5 * (t0_p + t1_p)), as_tuple=True)[0]
         if split.numel():
             from nsim.rendering.renderer import PER_RAY_FIELDS
 
@@ -868,14 +883,21 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
     return out
 
 
-def split_rays(baked: BakedScene, weights: Tensor, mid: Tensor) -> Tensor:
-    """``(R,)`` bool: rays whose baked weights ``(R, S)`` (sample midpoints ``mid (R, S)``) put at least
-    ``nerf_fallback_share`` of their sum farther than ``nerf_fallback_voxels`` from their median depth: light from
-    two surfaces (a depth edge), which one field window around the median cannot reproduce."""
+def fallback_rays(baked: BakedScene, weights: Tensor, mid: Tensor) -> Tensor:
+    """``(R,)`` bool: the rays the NeRF renders instead (``render_chunk``'s fallback), from their baked weights
+    ``(R, S)`` and sample midpoints ``mid (R, S)``: those that put at least ``nerf_fallback_share`` of the weights'
+    sum farther than ``nerf_fallback_voxels`` from their median depth (light from two surfaces, a depth edge, which
+    one field window around the median cannot reproduce), and those whose sum, the accumulation, stays below
+    ``nerf_fallback_accumulation`` (no surface in the bake: what no training camera saw, culled)."""
     acc = weights.sum(-1)
-    half = baked.nerf_fallback_voxels * float(baked.voxel_m.max())
-    far = (mid - volume.median_depth(weights, mid)[:, None]).abs() > half
-    return (acc > volume.EPS) & ((weights * far).sum(-1) >= baked.nerf_fallback_share * acc)
+    out = torch.zeros_like(acc, dtype=torch.bool)
+    if baked.nerf_fallback_share is not None:
+        half = baked.nerf_fallback_voxels * float(baked.voxel_m.max())
+        far = (mid - volume.median_depth(weights, mid)[:, None]).abs() > half
+        out |= (acc > volume.EPS) & ((weights * far).sum(-1) >= baked.nerf_fallback_share * acc)
+    if baked.nerf_fallback_accumulation is not None:
+        out |= acc < baked.nerf_fallback_accumulation
+    return out
 
 
 def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_samples: bool = False,
@@ -905,4 +927,4 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
 
 __all__ = ["BakeConfig", "BakePlan", "BakedScene", "ColorDecoder", "assemble", "bake", "bake_passes",
            "brick_visibility", "cull", "decoder_of", "density_at", "evaluate_lattice", "features_at", "finish_bake",
-           "locate", "plan_bake", "render_baked", "render_chunk", "split_rays", "training_rays"]
+           "fallback_rays", "locate", "plan_bake", "render_baked", "render_chunk", "training_rays"]

@@ -113,7 +113,7 @@ class ShardRenderer:
             from nsim.rendering.baked import render_baked
 
             nerf = None
-            if self.baked.nerf_fallback_share is not None:  # the split rays (depth edges) from the NeRF itself
+            if self.baked.falls_back:  # depth edges and what the bake lacks: from the NeRF itself
                 nerf = lambda r: render_rays(self.model, r, "proposal", self.grid, cfg.march, cfg.chunk_rays)  # noqa: E731
             out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people), colour=colour,
                                fallback=nerf)

@@ -217,6 +217,12 @@ def test_save_load_round_trip_and_same_bytes(baked, model, grid, tmp_path):
     rays = some_rays(100)
     for f in ("rgb", "depth", "accumulation"):
         assert torch.equal(getattr(render_baked(back, rays), f), getattr(render_baked(baked, rays), f))
+    c = tmp_path / "c"  # the NeRF fallback's settings travel with the file
+    c.mkdir()
+    dataclasses.replace(baked, nerf_fallback_share=0.25, nerf_fallback_voxels=3.0, nerf_fallback_accumulation=0.4).save(c)
+    back = BakedScene.load(c)
+    assert (back.nerf_fallback_share, back.nerf_fallback_voxels, back.nerf_fallback_accumulation) == (0.25, 3.0, 0.4)
+    assert BakedScene.load(a).nerf_fallback_share is None and not BakedScene.load(a).falls_back
 
 
 def test_pruning_drops_bricks_without_density(model, grid):
@@ -420,15 +426,19 @@ def test_no_features_with_field_samples(model, grid, baked, tmp_path):
         BakedScene.load(tmp_path)
 
 
-def test_split_rays_fall_back_to_the_nerf(baked, model):
+@pytest.mark.parametrize("rule", ["share", "accumulation"])
+def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
     """nerf_fallback_share: camera rays whose baked weight is split between surfaces (a share of it beyond
-    nerf_fallback_voxels of the median depth) take the NeRF's outputs; the other rays, a LiDAR's rays and rays
-    rendered with their samples (the people's merge) are the baked scene's as before."""
-    from nsim.rendering.baked import _march, split_rays
+    nerf_fallback_voxels of the median depth), nerf_fallback_accumulation: those whose baked accumulation stays
+    below it, take the NeRF's outputs; the other rays, a LiDAR's rays and rays rendered with their samples (the
+    people's merge) are the baked scene's as before."""
+    from nsim.rendering.baked import _march, fallback_rays
     from nsim.rendering.renderer import PER_RAY_FIELDS, render_rays
 
     plain = dataclasses.replace(baked, field_samples=4).with_field(model.field)
-    hybrid = dataclasses.replace(plain, nerf_fallback_share=0.2, nerf_fallback_voxels=1.0)
+    hybrid = dataclasses.replace(plain, **({"nerf_fallback_share": 0.2, "nerf_fallback_voxels": 1.0} if rule == "share"
+                                           else {"nerf_fallback_accumulation": 0.5}))
+    assert hybrid.falls_back and not plain.falls_back
     rays = some_rays(300, seed=8)
     calls = []
 
@@ -446,11 +456,14 @@ def test_split_rays_fall_back_to_the_nerf(baked, model):
     w = volume.render_weights(torch.zeros(len(rays), s_pad).index_put((ray, slot), sigma),
                               rays.far[:, None].expand(-1, s_pad).clone().index_put((ray, slot), t1 - t0))[0]
     mid = rays.far[:, None].expand(-1, s_pad).clone().index_put((ray, slot), 0.5 * (t0 + t1))
-    split = split_rays(hybrid, w, mid)
+    split = fallback_rays(hybrid, w, mid)
     assert 0 < int(split.sum()) < len(rays) and calls == [int(split.sum())]
-    # the plain twin of the rule: the share of each ray's weight beyond 1 voxel of its median depth
+    # the plain twin of the rule: the share of each ray's weight beyond 1 voxel of its median depth, or its sum
     for r in range(len(rays)):
         wr, mr = w[r], mid[r]
+        if rule == "accumulation":
+            assert bool(split[r]) == (float(wr.sum()) < 0.5)
+            continue
         if float(wr.sum()) <= volume.EPS:
             assert not split[r]
             continue
