@@ -591,7 +591,11 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
         return make_rays(torch.as_tensor(o, dtype=torch.float32), torch.as_tensor(d, dtype=torch.float32), sc.near_m,
                          sc.far_m, model.aabb.cpu() if sc.clip_rays_to_box else None)
 
-    cams = rays_of([s for s in rig.sensors if s.type != "lidar"])
+    cam_sensors = [s for s in rig.sensors if s.type != "lidar"]
+    cams = rays_of(cam_sensors)
+    # the fisheyes' pixels outside their image circle: rendered (as the stage does) but never by the NeRF fallback
+    cams_valid = torch.as_tensor(np.concatenate([np.isfinite(s.rays(body)[1]).all(-1).reshape(-1)
+                                                 for s in cam_sensors]), device=dev)
     lidar = rays_of([s for s in rig.sensors if s.type == "lidar"])
     rays = Rays(*(torch.cat([getattr(cams, f), getattr(lidar, f)]) for f in ("origins", "dirs", "near", "far")))
     g = torch.Generator().manual_seed(0)
@@ -613,7 +617,7 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
     nerf_s = timed(lambda: render_rays(model, sub, cfg.method, grid, cfg.march, cfg.chunk_rays))
     # as the stage renders them: the cameras with colour, the LiDAR without (depth only)
     nerf = lambda r: render_rays(model, r, cfg.method, grid, cfg.march, cfg.chunk_rays)  # noqa: E731
-    cams_s = timed(lambda: render_baked(baked, cams, cfg.chunk_rays, fallback=nerf))  # nerf_fallback_share's rays
+    cams_s = timed(lambda: render_baked(baked, cams, cfg.chunk_rays, fallback=nerf, may_fall_back=cams_valid))
     baked_s = cams_s + timed(lambda: render_baked(baked, lidar, cfg.chunk_rays, colour=False))
     return {"nerf_rays_s": len(sub) / nerf_s, "baked_rays_s": len(rays) / baked_s, "nerf_rays": len(sub),
             "baked_rays": len(rays), "baked_camera_rays_s": len(cams) / cams_s,

@@ -809,12 +809,13 @@ def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = 
 
 @torch.no_grad()
 def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, colour: bool = True,
-                 fallback=None) -> RenderOutput:
+                 fallback=None, may_fall_back: Tensor | None = None) -> RenderOutput:
     """Render ``rays`` (all at once: chunk outside) from the baked scene (module docstring). ``colour=False``
     (a LiDAR): depth and accumulation, no colour decoded (rgb is the background). fallback: the NeRF's renderer
     (``rays -> RenderOutput``) for the camera rays ``nerf_fallback_share`` and ``nerf_fallback_accumulation`` flag
-    (:func:`fallback_rays`); their
-    per-ray outputs are the NeRF's (not with ``return_samples``: the people's merge needs the baked samples)."""
+    (:func:`fallback_rays`); their per-ray outputs are the NeRF's (not with ``return_samples``: the people's merge
+    needs the baked samples). may_fall_back: ``(R,)`` bool, the rays that may (None: all; a sensor's pixels
+    outside its image, whose outputs are dropped, need no NeRF)."""
     n = len(rays)
     device = rays.origins.device
     ray, t0, t1, sigma, brick, local = _march(baked, rays)
@@ -871,7 +872,10 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
         out.depth[live] = torch.where(sure, depth, out.depth[live])
         out.depth_median[live] = torch.where(sure, median, out.depth_median[live])
     if fallback is not None and colour and not return_samples and baked.falls_back:
-        split = torch.nonzero(fallback_rays(baked, weights, 0.5 * (t0_p + t1_p)), as_tuple=True)[0]
+        flagged = fallback_rays(baked, weights, 0.5 * (t0_p + t1_p))
+        if may_fall_back is not None:
+            flagged &= may_fall_back
+        split = torch.nonzero(flagged, as_tuple=True)[0]
         if split.numel():
             from nsim.rendering.renderer import PER_RAY_FIELDS
 
@@ -901,7 +905,7 @@ def fallback_rays(baked: BakedScene, weights: Tensor, mid: Tensor) -> Tensor:
 
 
 def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_samples: bool = False,
-                 colour: bool = True, fallback=None) -> RenderOutput:
+                 colour: bool = True, fallback=None, may_fall_back: Tensor | None = None) -> RenderOutput:
     """Render any rays from the baked scene in chunks of ``chunk`` rays; the per-ray outputs (and, with
     ``return_samples``, the kept samples) as ``nsim.rendering.renderer.render_rays`` returns them. ``colour=False``:
     depth and accumulation only (a LiDAR; :func:`render_chunk`)."""
@@ -916,7 +920,8 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
         return _concat([render_chunk(baked, rays[a : a + chunk], True, colour) for a in range(0, n, chunk)])
     out = None
     for a in range(0, n, chunk):
-        o = render_chunk(baked, rays[a : a + chunk], colour=colour, fallback=fallback)
+        o = render_chunk(baked, rays[a : a + chunk], colour=colour, fallback=fallback,
+                         may_fall_back=None if may_fall_back is None else may_fall_back[a : a + chunk])
         if out is None:
             out = _per_ray_like(o, n)
         for f in PER_RAY_FIELDS:

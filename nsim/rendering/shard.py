@@ -116,7 +116,7 @@ class ShardRenderer:
             if self.baked.falls_back:  # depth edges and what the bake lacks: from the NeRF itself
                 nerf = lambda r: render_rays(self.model, r, "proposal", self.grid, cfg.march, cfg.chunk_rays)  # noqa: E731
             out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people), colour=colour,
-                               fallback=nerf)
+                               fallback=nerf, may_fall_back=torch.as_tensor(valid, device=self.device))
             if people:  # the people's samples merged with the baked scene's, as with the NeRF's
                 out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg, scene_out=out)
             else:

@@ -478,6 +478,12 @@ def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
     assert torch.equal(lidar.depth, render_baked(plain, rays, colour=False).depth) and len(calls) == 1
     with_samples = render_baked(hybrid, rays, return_samples=True, fallback=nerf)
     assert torch.equal(with_samples.rgb, before.rgb) and len(calls) == 1
+    # rays that may not fall back (a fisheye's pixels outside its image) keep the baked outputs
+    allowed = torch.arange(len(rays)) % 2 == 0
+    some = render_baked(hybrid, rays, fallback=nerf, may_fall_back=allowed)
+    assert calls[-1] == int((split & allowed).sum())
+    assert torch.equal(some.rgb[split & ~allowed], before.rgb[split & ~allowed])
+    assert torch.equal(some.rgb[split & allowed], after.rgb[split & allowed])
 
 
 @pytest.mark.gpu
