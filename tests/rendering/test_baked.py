@@ -488,17 +488,21 @@ def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
 
 @pytest.mark.gpu
 def test_cpu_and_cuda_render_the_same(baked, model):
-    """The baked march, the field window and the LiDAR's colourless rays give the same result on CUDA as on the
-    CPU (the scene and its field moved together; float32 on both)."""
+    """The baked march, the field window, the NeRF fallback and the LiDAR's colourless rays give the same result on
+    CUDA as on the CPU (the scene, its field and the NeRF moved together; float32 on both)."""
     import copy
 
-    windowed = dataclasses.replace(baked, field_samples=6, field_window_voxels=1.5).with_field(model.field)
+    from nsim.rendering.renderer import render_rays
+
+    windowed = dataclasses.replace(baked, field_samples=6, field_window_voxels=1.5, nerf_fallback_share=0.2,
+                                   nerf_fallback_voxels=1.0, nerf_fallback_accumulation=0.5).with_field(model.field)
     rays = some_rays(400, seed=21)
-    on_cuda = windowed.to("cuda").with_field(copy.deepcopy(model.field).to("cuda"))
+    model_cuda = copy.deepcopy(model).to("cuda")
+    on_cuda = windowed.to("cuda").with_field(model_cuda.field)
     rays_cuda = rays.to("cuda")
     for colour in (True, False):
-        cpu = render_baked(windowed, rays, colour=colour)
-        gpu = render_baked(on_cuda, rays_cuda, colour=colour)
+        cpu = render_baked(windowed, rays, colour=colour, fallback=lambda r: render_rays(model, r, "proposal"))
+        gpu = render_baked(on_cuda, rays_cuda, colour=colour, fallback=lambda r: render_rays(model_cuda, r, "proposal"))
         assert gpu.depth.device.type == "cuda"
         torch.testing.assert_close(gpu.accumulation.cpu(), cpu.accumulation, rtol=1e-4, atol=1e-4)
         torch.testing.assert_close(gpu.rgb.cpu(), cpu.rgb, rtol=1e-3, atol=1e-3)
