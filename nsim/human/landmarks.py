@@ -27,7 +27,8 @@ detector over the frames last to first (a tracker's smoothing lags behind the mo
 other way). The looks at a frame are averaged (``average_looks``). On the test room's actor video the fitted
 skeleton's PA-MPJPE falls from 7.43 to 6.45 cm (320x240, 30 frames) and from 9.1 to 8.3 cm (480x360, 60 frames),
 the mask IoU rises from 0.892 to 0.909 and from 0.903 to 0.916 (``bench/real_people.py --fit-only [--quick]``;
-mirrored only: 7.31 and 8.46 cm; both directions only: 6.80 and 8.85 cm), for four times the detector's time.
+mirrored only: 7.31 and 8.46 cm; both directions only: 6.80 and 8.85 cm), for three times the detector's
+time (1.0 -> 3.0 s and 2.0 -> 6.3 s).
 """
 
 from __future__ import annotations
