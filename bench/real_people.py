@@ -26,8 +26,10 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
 ``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
 60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are
 null). ``--mask-threshold`` and ``--min-visibility`` set the person config's mask cut and the fit's
-visibility cut (their defaults otherwise). Prints a table; the last line is a JSON object with keys
-``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render`` (and more).
+visibility cut (their defaults otherwise); ``--no-mirror`` and ``--one-direction`` how the detector
+looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``). Prints a table; the
+last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``
+(and more).
 """
 
 from __future__ import annotations
@@ -127,6 +129,10 @@ def main() -> None:
                     help="the person config's mask_threshold (default: TRAINING_MASK_THRESHOLD)")
     ap.add_argument("--min-visibility", type=float, default=None,
                     help="the skeleton fit's min_visibility (default: FitConfig's)")
+    ap.add_argument("--no-mirror", action="store_true",
+                    help="the person detector looks at each frame once, not also mirrored (mirror_landmarks=False)")
+    ap.add_argument("--one-direction", action="store_true",
+                    help="the person detector runs over the frames first to last only (both_directions=False)")
     ap.add_argument("--fit", dest="fit_overrides", action="append", default=[], metavar="FIELD=VALUE",
                     help="a skeleton-fit setting (nsim.human.fit.FitConfig field, a number), e.g. smooth_weight=2")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -155,6 +161,10 @@ def main() -> None:
         person = PersonVideoConfig(body_height_m=height)
         if args.mask_threshold is not None:
             person = dataclasses.replace(person, mask_threshold=args.mask_threshold)
+        if args.no_mirror:
+            person = dataclasses.replace(person, mirror_landmarks=False)
+        if args.one_direction:
+            person = dataclasses.replace(person, both_directions=False)
         if args.min_visibility is not None:
             person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, min_visibility=args.min_visibility))
         for item in args.fit_overrides:
@@ -177,6 +187,7 @@ def main() -> None:
         if args.fit_only:
             print(json.dumps({"quick": q, "fit_only": True, "mask_threshold": person.mask_threshold,
                               "min_visibility": person.fit.min_visibility, "fit": dataclasses.asdict(person.fit),
+                              "mirror_landmarks": person.mirror_landmarks, "both_directions": person.both_directions,
                               "camera": report["camera"],
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),

@@ -57,6 +57,10 @@ class PersonVideoConfig:
         auto (moving when the background moves between frames).
     mask_threshold: the person's probability at which a pixel joins its training masks
         (``nsim.human.landmarks.person_training_mask``).
+    mirror_landmarks: MediaPipe's person detector also looks at the mirrored frames
+        (``nsim.human.landmarks.MediaPipePoseDetector``'s mirror).
+    both_directions: a second detector also runs over the frames last to first (``nsim.human.landmarks.observe``'s
+        backward); the looks at a frame are averaged.
     """
 
     hfov_deg: float | None = None
@@ -68,6 +72,8 @@ class PersonVideoConfig:
     fit: FitConfig = field(default_factory=FitConfig)
     camera: str = "auto"
     mask_threshold: float = TRAINING_MASK_THRESHOLD
+    mirror_landmarks: bool = True
+    both_directions: bool = True
 
     def __post_init__(self) -> None:
         if not (0.0 < self.mask_threshold < 1.0):

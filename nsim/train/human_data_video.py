@@ -162,20 +162,26 @@ def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray
 def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None) -> dict:
     """Steps 1-4 of the module docstring; returns the person_fit.json content.
 
-    detector: a ``nsim.human.landmarks.PoseDetector`` (None: MediaPipe, which needs ``nsim[people]``).
+    detector: a ``nsim.human.landmarks.PoseDetector`` run over the frames once, in order (None: MediaPipe, which
+    needs ``nsim[people]``, mirrored and in both directions as ``source.person`` says).
     """
     from nsim.human.landmarks import MediaPipePoseDetector, observe
 
-    own = detector is None
-    detector = MediaPipePoseDetector() if own else detector
-    try:
-        frames, index, fps = read_person_frames(source)
-        obs = observe(frames, detector)
-    finally:
-        if own:
-            detector.close()
-    moving = None
     cfg = source.person
+    own = detector is None
+    made = []
+    try:
+        if own:
+            made.append(MediaPipePoseDetector(mirror=cfg.mirror_landmarks))
+            if cfg.both_directions:
+                made.append(MediaPipePoseDetector(mirror=cfg.mirror_landmarks))
+            detector = made[0]
+        frames, index, fps = read_person_frames(source)
+        obs = observe(frames, detector, backward=made[1] if len(made) > 1 else None)
+    finally:
+        for d in made:
+            d.close()
+    moving = None
     if cfg.camera != "static":
         from nsim.human.landmarks import MASK_THRESHOLD
         from nsim.human.moving_camera import background_motion_px, camera_moves, camera_path

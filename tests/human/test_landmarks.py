@@ -11,14 +11,17 @@ from nsim.errors import InputError
 from nsim.human.landmarks import (
     LANDMARK_BONES,
     LANDMARK_NAMES,
+    MIRRORED_LANDMARKS,
     TRAINING_MASK_THRESHOLD,
     FrameObservation,
     MediaPipePoseDetector,
+    average_looks,
     confirmed_person,
     observe,
     other_people,
     other_people_blobs,
     person_training_mask,
+    unmirror,
 )
 
 
@@ -61,6 +64,34 @@ def test_observe_stacks_frames_and_marks_misses():
         observe([], _Scripted())
 
 
+class _Counting:
+    """A detector whose look at a frame puts every landmark at (its call number, the frame's value)."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, rgb):
+        self.calls += 1
+        if rgb[0, 0, 0] == 0:
+            return None
+        uv = np.column_stack([np.full(33, float(self.calls)), np.full(33, float(rgb[0, 0, 0]))])
+        uv[[11, 12, 23, 24], 1] += (0.0, 0.0, 20.0, 20.0)  # a torso 20 px long
+        return FrameObservation(uv, np.zeros((33, 3)), np.full(33, 0.9), np.full(rgb.shape[:2], 0.5, np.float32))
+
+
+def test_observe_backward_averages_a_second_run_from_the_last_frame():
+    frames = [np.full((8, 10, 3), v, np.uint8) for v in (5, 6, 0, 7)]
+    fwd, back = _Counting(), _Counting()
+    obs = observe(iter(frames), fwd, backward=back)
+    assert fwd.calls == back.calls == 4 and obs.found.tolist() == [True, True, False, True]
+    # forward calls 1, 2, 4 and backward calls 4, 3, 1 saw frames 0, 1, 3: each frame's mean is 2.5
+    np.testing.assert_allclose(obs.image_uv_px[[0, 1, 3], :, 0], 2.5)
+    np.testing.assert_allclose(obs.image_uv_px[[0, 1, 3], 0, 1], [5.0, 6.0, 7.0])
+    assert np.isnan(obs.image_uv_px[2]).all()
+    alone = observe(frames, _Counting())
+    np.testing.assert_allclose(alone.image_uv_px[[0, 1, 3], 0, 0], [1.0, 2.0, 4.0])
+
+
 def test_other_people_counts_separate_blobs():
     person = np.zeros((100, 160), np.float32)
     person[20:90, 30:50] = 1.0
@@ -74,6 +105,55 @@ def test_other_people_counts_separate_blobs():
     touching = person.copy()
     touching[20:90, 50:70] = 1.0  # the tracked person's own halo
     assert other_people(person, touching) == 0
+
+
+def _look(seed: int, w: int = 40, h: int = 30) -> FrameObservation:
+    """A random look at an (h, w) frame: landmarks near a torso 10 px long, a random mask and people mask."""
+    rng = np.random.default_rng(seed)
+    uv = np.column_stack([rng.uniform(10, 30, 33), rng.uniform(5, 25, 33)])
+    names = {n: LANDMARK_NAMES.index(n) for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip")}
+    uv[[names["left_shoulder"], names["right_shoulder"]]] = ((16.0, 8.0), (24.0, 8.0))
+    uv[[names["left_hip"], names["right_hip"]]] = ((17.0, 18.0), (23.0, 18.0))
+    return FrameObservation(uv, rng.normal(size=(33, 3)), rng.uniform(size=33),
+                            rng.uniform(size=(h, w)).astype(np.float32), rng.uniform(size=(h, w)).astype(np.float32))
+
+
+def test_mirrored_landmarks_swap_sides():
+    order = np.asarray(MIRRORED_LANDMARKS)
+    np.testing.assert_array_equal(order[order], np.arange(33))  # its own inverse
+    for a, b in (("nose", "nose"), ("left_wrist", "right_wrist"), ("right_eye_outer", "left_eye_outer"),
+                 ("mouth_left", "mouth_right"), ("left_foot_index", "right_foot_index")):
+        assert LANDMARK_NAMES[order[LANDMARK_NAMES.index(a)]] == b
+
+
+def test_unmirror_takes_a_mirrored_look_back_to_the_frame():
+    ob = _look(0)
+    back = unmirror(ob, 40)
+    i, j = LANDMARK_NAMES.index("left_wrist"), LANDMARK_NAMES.index("right_wrist")
+    assert back.image_uv_px[i, 0] == 39 - ob.image_uv_px[j, 0] and back.image_uv_px[i, 1] == ob.image_uv_px[j, 1]
+    np.testing.assert_array_equal(back.body_m[i], ob.body_m[j] * np.array([-1.0, 1.0, 1.0]))
+    assert back.visibility[i] == ob.visibility[j]
+    np.testing.assert_array_equal(back.person_mask, ob.person_mask[:, ::-1])
+    np.testing.assert_array_equal(back.people_mask, ob.people_mask[:, ::-1])
+    twice = unmirror(back, 40)
+    for name in ("image_uv_px", "body_m", "visibility", "person_mask", "people_mask"):
+        np.testing.assert_allclose(getattr(twice, name), getattr(ob, name), rtol=0, atol=1e-12)
+
+
+def test_average_looks_means_two_looks_that_agree_and_keeps_the_direct_one_otherwise():
+    a, b = _look(1), _look(2)
+    b = FrameObservation(a.image_uv_px + 1.0, b.body_m, b.visibility, b.person_mask, b.people_mask)
+    m = average_looks(a, b)
+    np.testing.assert_allclose(m.image_uv_px, a.image_uv_px + 0.5)
+    np.testing.assert_allclose(m.body_m, 0.5 * (a.body_m + b.body_m))
+    np.testing.assert_allclose(m.visibility, 0.5 * (a.visibility + b.visibility))
+    np.testing.assert_allclose(m.person_mask, 0.5 * (a.person_mask + b.person_mask), rtol=1e-6)
+    assert m.person_mask.dtype == np.float32 and m.people_mask is a.people_mask
+    assert average_looks(a, None) is a and average_looks(None, b) is b and average_looks(None, None) is None
+    # 6 px apart on a 10 px torso (more than half of it): another person; the first look stays
+    far = FrameObservation(a.image_uv_px + np.array([6.0, 0.0]), b.body_m, b.visibility, b.person_mask)
+    assert average_looks(a, far) is a
+    assert average_looks(a, far, max_disagreement=0.7) is not a
 
 
 def test_without_mediapipe_one_line_naming_the_extra(monkeypatch):
@@ -216,3 +296,30 @@ def test_mediapipe_confirms_a_second_actor_and_the_frame_still_tracks_the_first(
         pair = det(two)
     assert other_people(alone.person_mask, alone.people_mask) == 0
     assert other_people(pair.person_mask, pair.people_mask) == 1
+
+
+@pytest.mark.slow
+def test_mediapipe_mirrored_look_agrees_with_the_direct_one(tmp_path):
+    """With ``nsim[people]``: BlazePose on the mirrored frames, taken back by ``unmirror``, finds the test actor
+    where it does on the frames themselves: the same side's landmarks in the same pixels and body coordinates
+    (checks the pixel flip, the left/right swap and the body's x sign against the model)."""
+    pytest.importorskip("mediapipe")
+    from nsim.human.data import HumanData
+    from nsim.synth.actor_capture import ActorCaptureConfig, render_actor_capture
+
+    render_actor_capture(tmp_path / "cap", ActorCaptureConfig(n_frames=3, fps=10.0, width=320, height=240,
+                                                              supersample=1, video=False), seed=0)
+    images, _, _ = HumanData.load(tmp_path / "cap").read_all()
+    with MediaPipePoseDetector(find_others=False, mirror=False) as det:
+        direct = [det(im) for im in images]
+    with MediaPipePoseDetector(find_others=False, mirror=False) as det:
+        back = [unmirror(det(np.ascontiguousarray(im[:, ::-1])), 320) for im in images]
+    torso = [LANDMARK_NAMES.index(n) for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip")]
+    for d, b in zip(direct, back, strict=True):
+        assert np.linalg.norm(d.image_uv_px[torso] - b.image_uv_px[torso], axis=-1).max() < 8.0
+        # x (the side the body's left lies on) and y agree; depth z is where the two looks differ most (up to 15 cm)
+        assert np.abs(d.body_m[torso, :2] - b.body_m[torso, :2]).max() < 0.06
+        assert np.mean((d.person_mask >= 0.5) == (b.person_mask >= 0.5)) > 0.98
+    with MediaPipePoseDetector(find_others=False) as det:  # the default: both looks, averaged
+        both = det(images[0])
+    assert np.linalg.norm(both.image_uv_px[torso] - direct[0].image_uv_px[torso], axis=-1).max() < 8.0

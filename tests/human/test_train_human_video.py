@@ -43,12 +43,12 @@ def _landmarks(n: int) -> tuple[np.ndarray, np.ndarray]:
 class _Scripted:
     """Reports the known walk, frame after frame; frames whose pixels are all black show nobody."""
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, backward: bool = False):
         self.lm, self.uv = _landmarks(n)
-        self.k = 0
+        self.k, self.step = (n - 1, -1) if backward else (0, 1)
 
     def __call__(self, rgb):
-        k, self.k = self.k, self.k + 1
+        k, self.k = self.k, self.k + self.step
         if rgb.max() < 20:
             return None
         lm, uv = self.lm[k], self.uv[k]
@@ -76,7 +76,12 @@ def _video(path, n: int, dark=()) -> str:
 @pytest.fixture
 def scripted(monkeypatch):
     def make(n: int):
-        monkeypatch.setattr(landmarks, "MediaPipePoseDetector", lambda: _Scripted(n))
+        made = []
+
+        def detector(**kwargs):  # the second one made runs over the frames last to first (PersonVideoConfig.both_directions)
+            made.append(_Scripted(n, backward=bool(made)))
+            return made[-1]
+        monkeypatch.setattr(landmarks, "MediaPipePoseDetector", detector)
     return make
 
 
