@@ -587,20 +587,18 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
         o, d = zip(*(s.rays(body) for s in sensors), strict=True)
         o = np.concatenate([x.reshape(-1, 3) for x in o])
         d = np.concatenate([x.reshape(-1, 3) for x in d])
-        d = np.where(np.isfinite(d).all(-1, keepdims=True), d, [0.0, 0.0, 1.0])
+        valid = np.isfinite(d).all(-1)
+        d = np.where(valid[:, None], d, [0.0, 0.0, 1.0])
         return make_rays(torch.as_tensor(o, dtype=torch.float32), torch.as_tensor(d, dtype=torch.float32), sc.near_m,
-                         sc.far_m, model.aabb.cpu() if sc.clip_rays_to_box else None)
+                         sc.far_m, model.aabb.cpu() if sc.clip_rays_to_box else None), torch.as_tensor(valid)
 
-    cam_sensors = [s for s in rig.sensors if s.type != "lidar"]
-    cams = rays_of(cam_sensors)
-    # the fisheyes' pixels outside their image circle: rendered (as the stage does) but never by the NeRF fallback
-    cams_valid = torch.as_tensor(np.concatenate([np.isfinite(s.rays(body)[1]).all(-1).reshape(-1)
-                                                 for s in cam_sensors]), device=dev)
-    lidar = rays_of([s for s in rig.sensors if s.type == "lidar"])
+    # a sensor's pixels outside its image: rendered (as the stage does) but never by the NeRF fallback
+    cams, cams_valid = rays_of([s for s in rig.sensors if s.type != "lidar"])
+    lidar, _ = rays_of([s for s in rig.sensors if s.type == "lidar"])
     rays = Rays(*(torch.cat([getattr(cams, f), getattr(lidar, f)]) for f in ("origins", "dirs", "near", "far")))
     g = torch.Generator().manual_seed(0)
     sub = rays[torch.randperm(len(rays), generator=g)[: min(len(rays), args.nerf_rays)]].to(dev)
-    cams, lidar = cams.to(dev), lidar.to(dev)
+    cams, cams_valid, lidar = cams.to(dev), cams_valid.to(dev), lidar.to(dev)
 
     def timed(fn) -> float:  # wall seconds, the device's queue drained at both ends
         if dev.type == "cuda":

@@ -368,7 +368,8 @@ class BakedScene:
                 raise ValueError("aabb_m: expected [[x0, y0, z0], [x1, y1, z1]] with x1 > x0 ...")
             known = {"format", "units", "frame", "aabb_m", "grid_shape", "bricks", "bricks_per_side", "voxel_m", "geo_dim",
                      "feature_dtype", "sh_degree", "decoder_layers", "step_voxels", "block_cells", "stop_transmittance",
-                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels", "nerf_fallback_share", "nerf_fallback_voxels", "nerf_fallback_accumulation", "background",
+                     "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels",
+                     "nerf_fallback_share", "nerf_fallback_voxels", "nerf_fallback_accumulation", "background",
                      "background_rgb", "layout"}
             baked = cls(aabb=aabb, brick_index=torch.as_tensor(index), density=torch.as_tensor(density),
                         features=torch.as_tensor(features), bricks_per_side=b, decoder=decoder,
