@@ -323,18 +323,31 @@ class FitConfig:
         far arm's wrist was 11-25 px from the truth in the side-view frames, and dropping it at 0.3 let the fit
         put it 84-104 px off; MPJPE 11.55 cm at 0.3, 9.13 at 0.1 (7.88 and 7.43 at 320x240, 30 frames;
         ``--min-visibility V [--quick]``).
+
+    smooth_weight_image: ``smooth_weight`` when the landmarks' image positions are fitted too: their residuals
+        are pixels over ``ImageLandmarks.sigma_px``, some 30 times a 3D landmark's per metre at a few metres from
+        the camera, so the smoothness must weigh more to weigh the same.
+
+    smooth_weight_image (then smooth_weight, 0.5) and weight_3d were 0.5 and 0.05 until the legs' sides were
+    made consistent (``nsim.human.landmarks.consistent_sides``). Measured then on the test room's actor video
+    (60 frames at 480x360 / 30 at 320x240, both 10 fps; the detector's looks recorded once and fitted again),
+    PA-MPJPE in cm: 7.15 / 6.64 at (0.5, 0.05); at weight_3d 0.01 and smooth_weight_image 10 / 20 / 35 / 50 /
+    80 / 150: 7.16 / 6.33, 6.93 / 6.35, **6.81 / 6.25**, 6.75 / 6.37, 7.30 / 8.19, 8.39 / 10.25; weight_3d 0.02
+    at 35: 6.90 / 6.24. At 0.5 the term weighed almost nothing beside the image's (0.5 to 3.5 changed the error
+    by 0.0001 cm); too strong, it drags the swinging foot behind.
     """
 
     smooth_weight: float = 0.5
+    smooth_weight_image: float = 35.0
     rest_weight: float = 0.01
-    weight_3d: float = 0.05
+    weight_3d: float = 0.01
     max_iterations: int = 50
     joint_iterations: int = 8
     tolerance: float = 1e-6
     min_visibility: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("smooth_weight", "rest_weight", "weight_3d", "min_visibility", "tolerance"):
+        for name in ("smooth_weight", "smooth_weight_image", "rest_weight", "weight_3d", "min_visibility", "tolerance"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"FitConfig.{name}: must be >= 0, got {v!r}")
@@ -789,7 +802,7 @@ def fit_poses(landmarks_m: np.ndarray, body: BodyModel, weights: np.ndarray | No
     ub = np.concatenate([np.full((F, 3), np.inf), hi.reshape(F, -1)], axis=1).reshape(-1)
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"fit_poses: fps must be > 0, got {fps!r}")
-    smooth = cfg.smooth_weight * (float(fps) / SMOOTH_FPS) ** 2
+    smooth = (cfg.smooth_weight if image is None else cfg.smooth_weight_image) * (float(fps) / SMOOTH_FPS) ** 2
     # 1. every frame on its own (the problem separates: exact block solves, cost linear in the frames);
     # 2. all frames together with the smoothness term, from there (a sparse direct solve per step)
     sw3 = np.sqrt(w) * (np.sqrt(cfg.weight_3d) if image is not None else 1.0)

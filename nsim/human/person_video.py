@@ -28,7 +28,7 @@ import numpy as np
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.human.fit import FitConfig, ImageLandmarks, PoseFit, estimate_body, fit_poses
-from nsim.human.landmarks import TRAINING_MASK_THRESHOLD, Observations, person_training_mask
+from nsim.human.landmarks import TRAINING_MASK_THRESHOLD, Observations, consistent_sides, person_training_mask
 from nsim.human.monocular import place_landmarks, static_camera
 
 REFERENCE_WIDTH_PX = 480
@@ -61,6 +61,8 @@ class PersonVideoConfig:
         (``nsim.human.landmarks.MediaPipePoseDetector``'s mirror).
     both_directions: a second detector also runs over the frames last to first (``nsim.human.landmarks.observe``'s
         backward); the looks at a frame are averaged.
+    consistent_sides: relabel the legs' and arms' left and right landmarks where the detector's labelling jumps
+        from frame to frame (``nsim.human.landmarks.consistent_sides``) before fitting.
     """
 
     hfov_deg: float | None = None
@@ -74,6 +76,7 @@ class PersonVideoConfig:
     mask_threshold: float = TRAINING_MASK_THRESHOLD
     mirror_landmarks: bool = True
     both_directions: bool = True
+    consistent_sides: bool = True
 
     def __post_init__(self) -> None:
         if not (0.0 < self.mask_threshold < 1.0):
@@ -118,7 +121,8 @@ class PersonFit:
     cam_to_world: (4, 4) OpenCV axes, the same in every frame (a static camera), or (K, 4, 4) (moving). camera_height_m, scale: see
     ``nsim.human.monocular.Placement``. poses: the fit (root trajectory in the world).
     masks: (K, H, W) bool person masks. dropped: stretches of frames left out.
-    fps: the video's frame rate.
+    fps: the video's frame rate. relabelled: per limb pair (``nsim.human.landmarks.LIMB_SIDES``), the video
+    frames whose left and right landmarks were exchanged before fitting (``PersonVideoConfig.consistent_sides``).
     """
 
     frames: np.ndarray
@@ -130,6 +134,7 @@ class PersonFit:
     masks: np.ndarray
     dropped: tuple[DroppedStretch, ...]
     fps: float
+    relabelled: dict[str, list[int]] = field(default_factory=dict)
 
     def human_poses(self, file_paths: tuple[str | None, ...] | None = None):
         """The poses as ``nsim.human.data.HumanPoses`` (root orientation in ``root_to_world``)."""
@@ -189,6 +194,9 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
         raise InputError(f"{source}: more than one person in {int(crowded.sum())} of {int(found.sum())} frames "
                          f"(first at {first / fps:.1f} s): film one person at a time")
     keep = found & ~crowded
+    relabelled: dict[str, list[int]] = {}
+    if cfg.consistent_sides:
+        obs, relabelled = consistent_sides(obs, keep)
     try:
         if camera_path is None:
             camera = static_camera(obs.width, obs.height, cfg.hfov_deg)
@@ -226,7 +234,7 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     masks = np.stack([person_training_mask(obs.person_masks[f], obs.image_uv_px[f], cfg.mask_threshold)
                       for f in frames])
     return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
-                     tuple(dropped), float(fps))
+                     tuple(dropped), float(fps), relabelled)
 
 
 __all__ = ["CAMERA_MODES", "CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person"]

@@ -154,6 +154,7 @@ def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray
         "bone_lengths_m": {sk.joint_names[j]: float(np.linalg.norm(sk.offsets_m[j])) for j in range(1, sk.num_joints)},
         "landmark_error_median_m": float(np.nanmedian(fit.poses.landmark_error_m)),
         "dropped": [d.describe(fit.fps) for d in fit.dropped],
+        "sides_relabelled": fit.relabelled,
     }
     atomic_write_text(out_dir / PERSON_FIT_FILE, json.dumps(report, indent=1) + "\n")
     return report
@@ -193,6 +194,10 @@ def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None
     fit = fit_person(obs, fps, cfg, source=str(source.path), camera_path=moving)
     for d in fit.dropped:
         log.warning("%s: dropped %s", source.path, d.describe(fit.fps))
+    for limb, frames_relabelled in fit.relabelled.items():
+        if frames_relabelled:
+            log.info("%s: the %s' left and right landmarks exchanged in %d frames (%s)", source.path, limb,
+                     len(frames_relabelled), ", ".join(map(str, frames_relabelled)))
     return write_person_data(Path(out_dir), frames, index, fit)
 
 
