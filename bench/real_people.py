@@ -63,7 +63,7 @@ from nsim.human.data import POSES_REFINED_FILE  # noqa: E402
 from nsim.stages import capture, train_human  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
-HELD_OUT_STEPS = 0  # the held-out fit's steps the bench scores with (refine.held_out_steps), unless --set says
+HELD_OUT_STEPS = 400  # the held-out fit's steps the bench scores with (refine.held_out_steps), unless --set says
 
 
 def score_fit(person_dir: Path, capture_dir: Path) -> dict:

@@ -151,9 +151,9 @@ class HumanRefineConfig:
     translation_weight: float = param(1e-1, ge=0.0, help="prior on the root translation, per m^2")
     smooth_weight: float = param(1e-1, ge=0.0, help="first differences between consecutive frames' corrections")
     held_out_steps: int = param(0, ge=0, help="Adam steps of the held-out frames' pose fit after training; 0: off")
-    held_out_lr: float = param(2e-3, gt=0.0, help="the held-out fit's Adam rate, decaying to a tenth over its steps")
-    held_out_rotation_weight: float = param(1e-3, ge=0.0, help="the held-out fit's prior on joint corrections, per rad^2")
-    held_out_translation_weight: float = param(1e-1, ge=0.0, help="the held-out fit's prior on the root shift, per m^2")
+    held_out_lr: float = param(1e-3, gt=0.0, help="the held-out fit's Adam rate, decaying to a tenth over its steps")
+    held_out_rotation_weight: float = param(1.0, ge=0.0, help="the held-out fit's prior on joint corrections, per rad^2")
+    held_out_translation_weight: float = param(1.0, ge=0.0, help="the held-out fit's prior on the root shift, per m^2")
 
 
 @dataclass(frozen=True)
