@@ -17,19 +17,28 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    folder without its background images, so both composite over the frames), and reports each
    model's held-out (novel-pose) PSNR in the person's box and its render's mask IoU
    (``eval.json``, ``nsim.train.human``: against the folder's masks, MediaPipe's for the fitted one),
-   and the same renders' IoU against the capture's true masks (``iou_render_true_masks``);
+   and the same renders' IoU against the capture's true masks (``iou_render_true_masks``). Both trainings
+   are scored with the held-out fit (``refine.held_out_steps``, ``nsim.train.human``; the novel-pose protocol
+   of Anim-NeRF, InstantAvatar and Vid2Avatar): each held-out frame's pose is fitted to its own image and
+   mask with the model frozen, and the keys above are the scores at the fitted poses (the true-mask IoU
+   renders them from ``poses_refined.json``); the same keys ending ``_given_poses`` are the scores at the
+   poses as given (the true-mask one at the folder's poses). The bench sets ``refine.held_out_steps`` to
+   ``HELD_OUT_STEPS`` unless a ``--set refine.held_out_steps=N`` says otherwise (0: no fit, and the two sets
+   of keys agree); ``wall_seconds`` has the fits' times (``held_out_fit_fitted``, ``held_out_fit_truth``,
+   included in the trainings'), ``held_out_fit`` how far they moved the held-out joints;
 5. with pose refinement on (``refine.lr > 0``, as the preset or ``--set`` says), the refined poses
    (``poses_refined.json``) are scored as in 3: ``mpjpe_cm`` is then the refined skeleton's (the
    pipeline's final fit) and ``mpjpe_cm_landmark_fit`` the landmark fit's before it, with both over
-   the trained and the held-out frames and how far refinement moved them under ``pose_refinement``.
+   the trained and the held-out frames and how far refinement moved them under ``pose_refinement``
+   (with the held-out fit, the held-out frames' "refined" poses are the fitted ones, also without refinement).
 
 ``--quick``: 320x240, 30 frames (3 s), the ``tiny`` preset with 150 steps. Full run: 480x360,
 60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are
 null). ``--mask-threshold`` and ``--min-visibility`` set the person config's mask cut and the fit's
 visibility cut (their defaults otherwise); ``--no-mirror`` and ``--one-direction`` how the detector
 looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``). Prints a table; the
-last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``
-(and more).
+last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``,
+``psnr_box_given_poses, psnr_box_gt_poses_given_poses, iou_render_given_poses`` (and more).
 """
 
 from __future__ import annotations
@@ -37,6 +46,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import shutil
 import sys
 import tempfile
@@ -52,6 +62,8 @@ from nsim.context import RunContext  # noqa: E402
 from nsim.human.data import POSES_REFINED_FILE  # noqa: E402
 from nsim.stages import capture, train_human  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
+
+HELD_OUT_STEPS = 400  # the held-out fit's steps the bench scores with (refine.held_out_steps), unless --set says
 
 
 def score_fit(person_dir: Path, capture_dir: Path) -> dict:
@@ -96,10 +108,11 @@ def score_refined(human_dir: Path, person_dir: Path, capture_dir: Path) -> dict:
     return out
 
 
-def render_iou_true_masks(human_dir: Path, folder: Path, capture_dir: Path) -> float:
+def render_iou_true_masks(human_dir: Path, folder: Path, capture_dir: Path, given_poses: bool = False) -> float:
     """Mean mask IoU of a human checkpoint's held-out renders (opacity > 0.5, at the folder's cameras and
-    poses: the refined ones when the checkpoint has them) against the capture's *true* masks, where
-    ``eval.json``'s IoU is against the folder's own (for the fitted folder MediaPipe's)."""
+    poses: the refined ones when the checkpoint has them, with the held-out fit the held-out frames' fitted
+    ones; ``given_poses``: the folder's own) against the capture's *true* masks, where ``eval.json``'s IoU is
+    against the folder's own (for the fitted folder MediaPipe's)."""
     from nsim.human.data import HumanData, read_poses
     from nsim.human.nerf import load_human_model
     from nsim.train.human import mask_iou
@@ -107,7 +120,7 @@ def render_iou_true_masks(human_dir: Path, folder: Path, capture_dir: Path) -> f
     data, truth = HumanData.load(folder), HumanData.load(capture_dir)
     model = load_human_model(human_dir)
     poses = (read_poses(human_dir / POSES_REFINED_FILE).joint_transforms()
-             if (human_dir / POSES_REFINED_FILE).is_file() else data.joint_transforms())
+             if (human_dir / POSES_REFINED_FILE).is_file() and not given_poses else data.joint_transforms())
     camera, c2w = data.camera(), data.cam_to_world()
     held = json.loads((human_dir / "human.json").read_text())["frames_held_out"]
     ious = []
@@ -116,6 +129,18 @@ def render_iou_true_masks(human_dir: Path, folder: Path, capture_dir: Path) -> f
         alpha = model.render(camera, c2w[row], poses[row])["alpha"]
         ious.append(mask_iou(alpha > 0.5, truth.mask(k)))
     return float(np.mean(ious))
+
+
+class _FitTimes(logging.Handler):
+    """Collects the held-out fits' wall times from the trainer's log line (its ``held_out_fit_s``)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.seconds: list[float] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if hasattr(record, "held_out_fit_s"):
+            self.seconds.append(float(record.held_out_fit_s))
 
 
 def main() -> None:
@@ -146,7 +171,9 @@ def main() -> None:
     cap_over = ["actor=true", "video=true"] + (["width=320", "height=240", "n_frames=30"] if q
                                                else ["width=480", "height=360", "n_frames=60"])
     steps = args.steps or (150 if q else None)
-    th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else []) + args.overrides
+    held_out = [] if any(o.split("=")[0].strip() == "refine.held_out_steps" for o in args.overrides) else [
+        f"refine.held_out_steps={HELD_OUT_STEPS}"]
+    th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else []) + held_out + args.overrides
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         store = Store(args.workspace or tmp / "ws")
@@ -175,7 +202,7 @@ def main() -> None:
             person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, **{field: kind(value)}))
         source = PersonSource(cap.path / "video.mp4", person=person)
         report = prepare_person_data(source, person_dir)
-        fit_s = time.perf_counter() - t0
+        fit_s_person = time.perf_counter() - t0
         scores = score_fit(person_dir, cap.path)
         truth_dir = tmp / "truth"  # the capture's own folder, without background images (as the fitted one)
         shutil.copytree(cap.path, truth_dir, ignore=shutil.ignore_patterns("background", "depth", "video.mp4"))
@@ -192,41 +219,62 @@ def main() -> None:
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
                               "psnr_box": None, "psnr_box_gt_poses": None, "iou_render": None,
-                              "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s, 1)}}))
+                              "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s_person, 1)}}))
             return
         cfg = load_config(train_human.Config, stage="train_human", preset="tiny" if q else "default",
                           overrides=th_over)
         ctx = dataclasses.replace(ctx, force=True)
-        evals, walls, refined = {}, {}, {}
+        evals, walls, refined, fits, fit_s = {}, {}, {}, {}, {}
+        fit_log = _FitTimes()
+        trainer_log = logging.getLogger("nsim.train.human")
+        trainer_log.addHandler(fit_log)
+        if not trainer_log.isEnabledFor(logging.INFO):
+            trainer_log.setLevel(logging.INFO)
         for name, folder in (("fitted", person_dir), ("truth", truth_dir)):
             t0 = time.perf_counter()
+            fit_log.seconds.clear()
             out = train_human.run(train_human.Inputs(folder=folder), cfg, ctx)
             walls[name] = time.perf_counter() - t0
+            fit_s[name] = sum(fit_log.seconds)
             art = store.get(out.human)
             evals[name] = json.loads(art.file("eval.json").read_text())["mean"]
             evals[name]["mask_iou_true_masks"] = render_iou_true_masks(art.path, folder, cap.path)
+            fitted_held_out = (art.path / "held_out_fit.json").is_file()
+            evals[name]["mask_iou_true_masks_given_poses"] = (
+                render_iou_true_masks(art.path, folder, cap.path, given_poses=True) if fitted_held_out
+                else evals[name]["mask_iou_true_masks"])
+            if fitted_held_out:
+                fits[name] = json.loads(art.file("held_out_fit.json").read_text())["moved"]
             if (art.path / POSES_REFINED_FILE).is_file():
                 refined[name] = score_refined(art.path, person_dir if name == "fitted" else truth_dir, cap.path)
-    print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s:.0f} s, "
+    print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s_person:.0f} s, "
           f"{report['frames_kept']} of {report['frames_in']} frames kept, height {report['height_m']:.2f} m, "
           f"camera height {report['camera_height_m']:.2f} m")
     print(f"mask IoU {scores['mask_iou']:.3f}; MPJPE after Procrustes {scores['mpjpe_cm']:.2f} cm "
           f"(root-relative, no alignment {scores['mpjpe_cm_no_alignment_root_relative']:.2f} cm)")
     for name, r in refined.items():
-        print(f"{name} poses refined with the NeRF: PA-MPJPE {r['mpjpe_cm_given']:.2f} -> {r['mpjpe_cm_refined']:.2f} cm "
+        print(f"{name} poses refined with the NeRF (held-out frames {'fitted' if name in fits else 'by neighbours'}): "
+              f"PA-MPJPE {r['mpjpe_cm_given']:.2f} -> {r['mpjpe_cm_refined']:.2f} cm "
               f"(trained frames {r.get('mpjpe_cm_given_trained', float('nan')):.2f} -> "
               f"{r.get('mpjpe_cm_refined_trained', float('nan')):.2f}, held-out "
               f"{r.get('mpjpe_cm_given_held_out', float('nan')):.2f} -> {r.get('mpjpe_cm_refined_held_out', float('nan')):.2f}); "
               f"moved {json.dumps(r['moved'])}")
-    print(f"{'poses':>8} {'PSNR box':>9} {'render IoU':>11} {'IoU true masks':>17} {'wall s':>7}")
+    print(f"held-out fit: {cfg.refine.held_out_steps} steps (scores at the fitted poses, then at the given ones)")
+    print(f"{'poses':>8} {'PSNR box':>9} {'render IoU':>11} {'IoU true masks':>15} {'given: PSNR':>12} {'IoU':>6} "
+          f"{'true':>6} {'fit s':>6} {'wall s':>7}")
+    nan = float("nan")
     for name in ("fitted", "truth"):
         m = evals[name]
-        print(f"{name:>8} {m.get('psnr_box', float('nan')):9.2f} {m['mask_iou']:11.3f} {m['mask_iou_true_masks']:17.3f} "
-              f"{walls[name]:7.0f}")
+        print(f"{name:>8} {m.get('psnr_box', nan):9.2f} {m['mask_iou']:11.3f} {m['mask_iou_true_masks']:15.3f} "
+              f"{m.get('psnr_box_given_poses', m.get('psnr_box', nan)):12.2f} "
+              f"{m.get('mask_iou_given_poses', m['mask_iou']):6.3f} {m['mask_iou_true_masks_given_poses']:6.3f} "
+              f"{fit_s[name]:6.1f} {walls[name]:7.0f}")
+    given = {name: {"psnr_box": m.get("psnr_box_given_poses", m.get("psnr_box", nan)),
+                    "mask_iou": m.get("mask_iou_given_poses", m["mask_iou"])} for name, m in evals.items()}
     print(json.dumps({"quick": q, "steps": cfg.optim.steps, "threads": threads, "camera": report["camera"],
                       "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                       "mask_iou": round(scores["mask_iou"], 4),
-                      "mpjpe_cm": round(refined["fitted"]["mpjpe_cm_refined"] if "fitted" in refined
+                      "mpjpe_cm": round(refined["fitted"]["mpjpe_cm_refined"] if "fitted" in refined and cfg.refine.lr > 0
                                         else scores["mpjpe_cm"], 3),
                       "mpjpe_cm_landmark_fit": round(scores["mpjpe_cm"], 3),
                       "pose_refinement": {name: {k: (round(v, 3) if isinstance(v, float) else v)
@@ -237,8 +285,18 @@ def main() -> None:
                       "iou_render_gt_poses": round(evals["truth"]["mask_iou"], 4),
                       "iou_render_true_masks": round(evals["fitted"]["mask_iou_true_masks"], 4),
                       "iou_render_gt_poses_true_masks": round(evals["truth"]["mask_iou_true_masks"], 4),
-                      "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s, 1),
-                                       **{f"train_{k}": round(v, 1) for k, v in walls.items()}}}))
+                      "held_out_steps": cfg.refine.held_out_steps,
+                      "psnr_box_given_poses": round(given["fitted"]["psnr_box"], 3),
+                      "psnr_box_gt_poses_given_poses": round(given["truth"]["psnr_box"], 3),
+                      "iou_render_given_poses": round(given["fitted"]["mask_iou"], 4),
+                      "iou_render_gt_poses_given_poses": round(given["truth"]["mask_iou"], 4),
+                      "iou_render_true_masks_given_poses": round(evals["fitted"]["mask_iou_true_masks_given_poses"], 4),
+                      "iou_render_gt_poses_true_masks_given_poses":
+                          round(evals["truth"]["mask_iou_true_masks_given_poses"], 4),
+                      "held_out_fit": {name: {k: round(v, 3) for k, v in moved.items()} for name, moved in fits.items()},
+                      "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s_person, 1),
+                                       **{f"train_{k}": round(v, 1) for k, v in walls.items()},
+                                       **{f"held_out_fit_{k}": round(v, 1) for k, v in fit_s.items()}}}))
 
 
 if __name__ == "__main__":

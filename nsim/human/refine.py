@@ -14,7 +14,9 @@ change): ``T'_i0 = (T_i0 + t_i) exp(r_i0)``, ``T'_ij = T'_i,parent L_ij exp(r_ij
 ``L_ij = T_i,parent^-1 T_ij``. With every correction zero the given poses come back (to float32
 rounding). The corrections are taken relative to their mean over the frames
 (:meth:`BodyPoseRefinement.corrections`): a correction shared by every frame is the canonical body's to
-absorb, and left free it lets body and poses drift together.
+absorb, and left free it lets body and poses drift together. A test-time fit of frames against a frozen
+body (``nsim.train.human``'s held-out fit) turns that off (``subtract_mean=False``): there each frame's
+correction is its own, and the body has nothing to absorb.
 
 :func:`regulariser` keeps the corrections small (a Gaussian prior) and smooth in frame order (a
 first-difference penalty over *all* frames). The smoothness term is what gives held-out frames, which
@@ -40,9 +42,11 @@ def axis_angle_to_matrix(v: Tensor) -> Tensor:
 class BodyPoseRefinement(nn.Module):
     """Learnable corrections of ``N`` given poses ``joint_transforms (N, J, 4, 4)`` of a skeleton with
     ``parents (J,)`` (the root's ``-1``; every parent before its child). ``forward()`` gives the refined
-    ``(N, J, 4, 4)``; the parameters are ``rotation (N, J, 3)`` and ``translation (N, 3)``."""
+    ``(N, J, 4, 4)``; the parameters are ``rotation (N, J, 3)`` and ``translation (N, 3)``.
+    ``subtract_mean``: apply the corrections less their mean over the frames (see :meth:`corrections`);
+    False applies each frame's own (a per-frame fit with the body frozen)."""
 
-    def __init__(self, joint_transforms: Tensor, parents: np.ndarray) -> None:
+    def __init__(self, joint_transforms: Tensor, parents: np.ndarray, subtract_mean: bool = True) -> None:
         super().__init__()
         T = torch.as_tensor(joint_transforms, dtype=torch.float32)
         parents = np.asarray(parents)
@@ -58,6 +62,7 @@ class BodyPoseRefinement(nn.Module):
         self.register_buffer("given", T)
         self.register_buffer("local", local)  # (N, J, 4, 4): joint-to-parent (the root's: to world)
         self.parents = [int(q) for q in parents]
+        self.subtract_mean = bool(subtract_mean)
         self.rotation = nn.Parameter(torch.zeros(n, J, 3))
         self.translation = nn.Parameter(torch.zeros(n, 3))
 
@@ -69,7 +74,10 @@ class BodyPoseRefinement(nn.Module):
         """The corrections applied: ``rotation (N, J, 3)`` and ``translation (N, 3)`` less their means over the
         frames. A correction every frame shares (a joint turned the same way in every pose, the whole body
         shifted) changes no image that the canonical body cannot change as well, so it is not the poses'
-        to learn: the fitter's errors are taken to average out over the frames."""
+        to learn: the fitter's errors are taken to average out over the frames. With ``subtract_mean`` False:
+        the parameters themselves."""
+        if not self.subtract_mean:
+            return self.rotation, self.translation
         return (self.rotation - self.rotation.mean(0, keepdim=True),
                 self.translation - self.translation.mean(0, keepdim=True))
 

@@ -22,6 +22,10 @@ Artifact layout (``nsim.train.human.export_human``)::
     gait.gif                  one walking cycle
     history.json, eval.json   training curve; per held-out view PSNR in the person's box, mask IoU
     eval/*.png                held-out renders beside ground truth
+    poses_refined.json        with pose refinement (refine.lr) or the held-out fit (refine.held_out_steps):
+    pose_refinement.json        every frame's pose as refined / fitted, and how far from the given ones
+    held_out_fit.json         with the held-out fit: how far it moved the held-out poses (eval.json then
+                                scores the fitted poses, and the given ones as ``*_given_poses``)
 
 Resume: checkpoints in ``<workspace>/tmp/train_human.<key>.resume/`` (as train-scene).
 """

@@ -24,6 +24,10 @@ model never saw). Evaluation on held-out frames: PSNR inside the person's 2D box
 truth mask's bounding box grown by ``output.box_margin_px``) and mask IoU (opacity > 0.5 vs
 the mask), against two trivial predictions: the box filled with the mean person colour of the
 training frames (``psnr_box_baseline``) and the background alone (``psnr_box_background``).
+With ``refine.held_out_steps > 0`` each held-out frame's pose is first fitted to its own image and mask
+with the model frozen (the protocol of Anim-NeRF, InstantAvatar and Vid2Avatar for novel poses whose
+estimates are off; :meth:`HumanTrainer.fit_held_out`), and the views are scored at the fitted poses and at
+the given ones (``*_given_poses``).
 
 Determinism and resume are the scene trainer's (``nsim.train.scene``): every random draw of
 step ``k`` comes from generators seeded with ``(seed, k)``, learning rates are functions of
@@ -44,6 +48,7 @@ import hashlib
 import json
 import logging
 import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,13 +136,24 @@ class HumanRefineConfig:
     root translation learned with the NeRF by the same losses, from ``start_fraction`` of the steps on,
     at Adam's rate ``lr`` (decaying with the others; 0: the poses are used as given). The regulariser
     (weights ``*_weight``, added to the loss) keeps the corrections small and smooth in frame order, which
-    also carries the neighbours' corrections to held-out frames (see ``nsim.human.refine``)."""
+    also carries the neighbours' corrections to held-out frames (see ``nsim.human.refine``).
+
+    Held-out fit (``held_out_steps > 0``; the test-time pose fit of Anim-NeRF, InstantAvatar and Vid2Avatar for
+    novel-pose scores with estimated poses): after training, with the model frozen, each held-out frame's pose
+    (as the model sees it then: refined when refinement is on) is fitted to its own image and mask by the
+    training losses through the same corrections, each frame's own (no mean over frames taken, no smoothness
+    term), under the prior ``held_out_*_weight``; the held-out views are then scored at the fitted poses (see
+    :meth:`HumanTrainer.fit_held_out`). 0: the poses as they are, the scores of before."""
 
     lr: float = param(0.0, ge=0.0, help="Adam's rate for the corrections (radians, metres); 0: off")
     start_fraction: float = param(0.25, ge=0.0, lt=1.0, help="refine from this share of the steps on")
     rotation_weight: float = param(1e-3, ge=0.0, help="prior on the joint corrections, per rad^2")
     translation_weight: float = param(1e-1, ge=0.0, help="prior on the root translation, per m^2")
     smooth_weight: float = param(1e-1, ge=0.0, help="first differences between consecutive frames' corrections")
+    held_out_steps: int = param(0, ge=0, help="Adam steps of the held-out frames' pose fit after training; 0: off")
+    held_out_lr: float = param(1e-3, gt=0.0, help="the held-out fit's Adam rate, decaying to a tenth over its steps")
+    held_out_rotation_weight: float = param(1.0, ge=0.0, help="the held-out fit's prior on joint corrections, per rad^2")
+    held_out_translation_weight: float = param(1.0, ge=0.0, help="the held-out fit's prior on the root shift, per m^2")
 
 
 @dataclass(frozen=True)
@@ -321,18 +337,24 @@ class HumanTrainer(ResumableTrainer):
         self.step = 0
         self.train_seconds = 0.0
         self.history: list[dict[str, float]] = []
+        self.held_out_fit: dict[str, Any] | None = None  # fit_held_out's result, once run
 
     # ------------------------------------------------------------------ ray pools
     def _build_pools(self) -> None:
-        """Per training frame, the flat pixel indices inside the dilated mask and those inside the
-        posed box but outside the dilated mask (the box's own pixels if that is empty)."""
+        """The training frames' ray pools (:meth:`_pools` at the given poses)."""
+        self.pools = self._pools(self.train_ids, self.joint_transforms[torch.as_tensor(self.train_ids)])
+
+    def _pools(self, frame_ids: np.ndarray, poses: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
+        """Per frame of ``frame_ids`` (posed by ``poses (len(frame_ids), J, 4, 4)``), the flat pixel indices
+        inside the dilated mask and those inside the posed box but outside the dilated mask (the box's own
+        pixels if that is empty), packed (:meth:`_pack`): ``[inside, outside]``."""
         h, w = self.data.size_hw
         inside, outside = [], []
         dirs_cam = self.dirs_cam.reshape(-1, 3)
-        for i in self.train_ids:
+        for row, i in enumerate(frame_ids):
             dil = torch.as_tensor(_dilate(self.data.masks[i], self.cfg.data.mask_dilation_px)).reshape(-1)
             origins, dirs = rays_from_pixels(dirs_cam, self.cam_to_world[i].expand(h * w, 4, 4))
-            box = self.model.posed_box(self.joint_transforms[i])[0]
+            box = self.model.posed_box(poses[row])[0]
             rays = make_rays(origins, dirs, self.cfg.data.near_m, 1e4, box)
             in_box = (rays.far > rays.near + 2e-4).cpu()
             pin = torch.nonzero(dil)[:, 0]
@@ -343,7 +365,7 @@ class HumanTrainer(ResumableTrainer):
                 pout = pin
             inside.append(pin)
             outside.append(pout)
-        self.pools = [self._pack(inside), self._pack(outside)]
+        return [self._pack(inside), self._pack(outside)]
 
     @staticmethod
     def _pack(lists: list[Tensor]) -> tuple[Tensor, Tensor, Tensor]:
@@ -356,20 +378,27 @@ class HumanTrainer(ResumableTrainer):
         """Frame index ``(B,)`` (into the data), pixel rows ``v`` and columns ``u`` of ``step``'s
         rays: a pure function of ``(seed, step)``; and the step's generator."""
         g = torch.Generator().manual_seed(_step_seed(self.seed, step))
+        frames, v, u = self._draw(g, self.pools, self.train_ids)
+        return frames, v, u, g
+
+    def _draw(self, g: torch.Generator, pools: list[tuple[Tensor, Tensor, Tensor]],
+              frame_ids: np.ndarray) -> tuple[Tensor, Tensor, Tensor]:
+        """``optim.rays_per_batch`` rays from ``pools`` (:meth:`_pools` of ``frame_ids``), ``data.inside_fraction``
+        of them inside the dilated masks, drawn by ``g``: frame index ``(B,)`` (into the data), rows, columns."""
         b = self.cfg.optim.rays_per_batch
         n_in = int(round(self.cfg.data.inside_fraction * b))
         picks = []
-        for pool, count in ((self.pools[0], n_in), (self.pools[1], b - n_in)):
+        for pool, count in ((pools[0], n_in), (pools[1], b - n_in)):
             flat, offsets, counts = pool
-            k = torch.randint(0, len(self.train_ids), (count,), generator=g)
+            k = torch.randint(0, len(frame_ids), (count,), generator=g)
             r = torch.rand(count, generator=g, dtype=torch.float64)
             j = offsets[k] + (r * counts[k]).long().clamp(max=counts[k] - 1)
             picks.append((k, flat[j]))
         k = torch.cat([p[0] for p in picks])
         pix = torch.cat([p[1] for p in picks])
         w = self.data.size_hw[1]
-        frames = torch.as_tensor(self.train_ids)[k]
-        return frames.to(self.device), (pix // w).to(self.device), (pix % w).to(self.device), g
+        frames = torch.as_tensor(frame_ids)[k]
+        return frames.to(self.device), (pix // w).to(self.device), (pix % w).to(self.device)
 
     # ------------------------------------------------------------------ rendering
     def _background(self, frames: Tensor, v: Tensor, u: Tensor) -> Tensor:
@@ -458,12 +487,83 @@ class HumanTrainer(ResumableTrainer):
             self.refine.load_state_dict(state["pose_refinement"])
 
     def refined_poses(self) -> np.ndarray | None:
-        """The refined joint transforms ``(N, J, 4, 4)`` float64 of every frame (held-out ones moved by
-        their neighbours only), or None without refinement."""
-        if self.refine is None:
+        """The refined joint transforms ``(N, J, 4, 4)`` float64 of every frame: the trained frames refined
+        (as given without refinement), the held-out ones fitted to their own images with the held-out fit
+        (:meth:`fit_held_out`, run here if it has not been), else moved by their neighbours only; None with
+        neither refinement nor the held-out fit."""
+        if self.refine is None and self.cfg.refine.held_out_steps == 0:
             return None
         with torch.no_grad():
-            return self.refine().double().cpu().numpy()
+            return self.scoring_poses().double().cpu().numpy()
+
+    # ------------------------------------------------------------------ the held-out fit
+    def scoring_poses(self) -> Tensor:
+        """Every frame's joint transforms ``(N, J, 4, 4)`` as the held-out views are scored: :meth:`poses`
+        with the held-out frames' replaced by their fitted ones when the held-out fit is on."""
+        fit = self.fit_held_out()
+        return self.poses().detach() if fit is None else fit["poses"]
+
+    def fit_held_out(self) -> dict[str, Any] | None:
+        """Fit the held-out frames' poses to their own images and masks with the model frozen; None when
+        ``refine.held_out_steps`` is 0 or nothing is held out. Run once, the result kept
+        (``self.held_out_fit``).
+
+        Each held-out frame's pose, as the model sees it now (:meth:`poses`), gets its own corrections
+        (``BodyPoseRefinement(subtract_mean=False)``: joint rotations and a root translation), learned for
+        ``held_out_steps`` Adam steps at ``held_out_lr`` (decaying to a tenth) by the training losses —
+        composite MSE + ``loss.mask_weight`` x mask MSE on ``optim.rays_per_batch`` rays drawn from the held-out
+        frames' pools as training draws from the training frames' (inside the dilated mask / inside the
+        posed box), with generators seeded by ``(seed, k)`` for the fit's purpose — plus the prior
+        ``held_out_rotation_weight * mean(r^2) + held_out_translation_weight * mean(t^2)``. No weight of the model
+        changes (its parameters are frozen for the fit and their ``requires_grad`` restored after).
+
+        Returns ``{"poses": (N, J, 4, 4) every frame (the held-out ones fitted, float32, on the device),
+        "start": the same before the fit, "loss_first", "loss_last": the fit's loss at its first and last
+        step, "seconds": its wall time}``.
+        """
+        r = self.cfg.refine
+        if self.held_out_fit is not None or r.held_out_steps == 0 or len(self.eval_ids) == 0:
+            return self.held_out_fit
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            start = self.poses().detach().clone()
+        ids = torch.as_tensor(self.eval_ids, device=self.device)
+        pools = self._pools(self.eval_ids, start[ids])
+        fit = BodyPoseRefinement(start[ids], self.data.skeleton.parents, subtract_mean=False).to(self.device)
+        opt = torch.optim.Adam(fit.parameters(), lr=r.held_out_lr)
+        params = list(self.model.parameters())
+        was = [p.requires_grad for p in params]
+        for p in params:
+            p.requires_grad_(False)
+        losses = []
+        try:
+            for k in range(r.held_out_steps):
+                for group in opt.param_groups:
+                    group["lr"] = r.held_out_lr * 0.1 ** (k / r.held_out_steps)
+                g = torch.Generator().manual_seed(_step_seed(self.seed, k, "held_out_fit"))
+                frames, v, u = self._draw(g, pools, self.eval_ids)
+                poses = start.index_put((ids,), fit())
+                out = self.render_rays(frames, v, u, generator=g, poses=poses)
+                target = self.images[frames, v, u].float() / 255.0
+                mask = self.masks[frames, v, u].float()
+                loss = (torch.mean((out.rgb - target) ** 2) + self.cfg.loss.mask_weight * torch.mean((out.alpha[0] - mask) ** 2)
+                        + fit.regulariser(r.held_out_rotation_weight, r.held_out_translation_weight, 0.0))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                losses.append(float(loss.detach()))
+        finally:
+            for p, flag in zip(params, was, strict=True):
+                p.requires_grad_(flag)
+        with torch.no_grad():
+            poses = start.index_put((ids,), fit())
+        self.held_out_fit = {"poses": poses, "start": start, "loss_first": losses[0], "loss_last": losses[-1],
+                             "seconds": time.perf_counter() - t0}
+        moved = pose_change(start[ids].double().cpu().numpy(), poses[ids].double().cpu().numpy())
+        log.info("held-out pose fit: %d frames, %d steps, loss %.5f -> %.5f, joints moved %.2f cm on average, in %.1f s",
+                 len(self.eval_ids), r.held_out_steps, losses[0], losses[-1], moved["joint_shift_cm_mean"],
+                 self.held_out_fit["seconds"], extra={"held_out_fit_s": self.held_out_fit["seconds"]})
+        return self.held_out_fit
 
     def history_row(self, stats: StepStats) -> dict[str, Any]:
         """The history's row at a logged step: loss, training PSNR and the step's extras."""
@@ -471,10 +571,11 @@ class HumanTrainer(ResumableTrainer):
 
     # ------------------------------------------------------------------ evaluation
     @torch.no_grad()
-    def render_view(self, i: int) -> dict[str, np.ndarray]:
-        """Frame ``i`` rendered at its camera and pose over its background: rgb (H, W, 3), alpha (H, W)."""
+    def render_view(self, i: int, poses: Tensor | None = None) -> dict[str, np.ndarray]:
+        """Frame ``i`` rendered at its camera and pose over its background: rgb (H, W, 3), alpha (H, W).
+        ``poses``: every frame's joint transforms ``(N, J, 4, 4)`` (default :meth:`poses`)."""
         self.model.eval()
-        poses = self.poses()
+        poses = self.poses() if poses is None else poses
         h, w = self.data.size_hw
         vv, uu = torch.meshgrid(torch.arange(h, device=self.device), torch.arange(w, device=self.device), indexing="ij")
         v, u = vv.reshape(-1), uu.reshape(-1)
@@ -496,12 +597,16 @@ class HumanTrainer(ResumableTrainer):
         return self.data.images[self.train_ids][m].astype(np.float64).mean(0) / 255.0
 
     def evaluate(self, views: list[int] | None = None, keep_images: bool = False) -> dict[str, Any]:
-        """PSNR in the person's box, mask IoU and the constant-colour baseline on held-out frames."""
+        """PSNR in the person's box, mask IoU and the constant-colour baseline on held-out frames. With the
+        held-out fit (``refine.held_out_steps > 0``, :meth:`fit_held_out`, run here if it has not been)
+        ``psnr_box`` and ``mask_iou`` are the scores at the fitted poses and ``psnr_box_given_poses``,
+        ``mask_iou_given_poses`` those at the poses as given (:meth:`poses`); the images kept are the former."""
         views = list(self.eval_ids) if views is None else list(views)
         mean_colour = self.mean_person_colour()
+        fit = self.fit_held_out()
         rows, images = [], {}
         for i in views:
-            pred = self.render_view(i)
+            pred = self.render_view(i, poses=None if fit is None else fit["poses"])
             gt = self.data.images[i].astype(np.float32) / 255.0
             mask = self.data.masks[i]
             box = mask_box(mask, self.cfg.output.box_margin_px)
@@ -513,10 +618,16 @@ class HumanTrainer(ResumableTrainer):
                 row["psnr_box"] = psnr(pred["rgb"][sl], gt[sl])
                 row["psnr_box_baseline"] = psnr(baseline[sl], gt[sl])
                 row["psnr_box_background"] = psnr(empty[sl], gt[sl])
+            if fit is not None:
+                given = self.render_view(i)
+                row["mask_iou_given_poses"] = mask_iou(given["alpha"] > 0.5, mask)
+                if box is not None:
+                    row["psnr_box_given_poses"] = psnr(given["rgb"][sl], gt[sl])
             rows.append(row)
             if keep_images:
                 images[int(i)] = pred
-        keys = [k for k in ("mask_iou", "psnr_box", "psnr_box_baseline", "psnr_box_background") if any(k in r for r in rows)]
+        keys = [k for k in ("mask_iou", "psnr_box", "psnr_box_baseline", "psnr_box_background", "mask_iou_given_poses",
+                            "psnr_box_given_poses") if any(k in r for r in rows)]
         summary = {k: float(np.mean([r[k] for r in rows if k in r])) for k in keys}
         return {"views": rows, "mean": summary, "images": images}
 
@@ -578,11 +689,16 @@ def train_human(
     background model) in ``work_dir`` is resumed; one is written every
     ``output.checkpoint_every`` steps and at the end. ``stop_after``: return after that many
     total steps without writing a checkpoint, as if killed (tests). The loop is ``nsim.train.loop.resume_and_train``.
+    A finished training then fits the held-out frames' poses when ``refine.held_out_steps > 0``
+    (:meth:`HumanTrainer.fit_held_out`; not checkpointed: a resumed run fits them again, to the same result).
     """
     o = cfg.output
     trainer, resumed = loop.resume_and_train(lambda: HumanTrainer(data, cfg, device, seed, background_model), work_dir,
                                              cfg.optim.steps, o.log_every, o.checkpoint_every, "training human",
                                              progress, stop_after, on_log, log)
+    if cfg.refine.held_out_steps > 0 and trainer.step >= cfg.optim.steps:
+        with loop.torch_threads(trainer.loop_threads()):
+            trainer.fit_held_out()
     return HumanTrainResult(trainer, resumed)
 
 
@@ -606,10 +722,16 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
     pose from ``output.preview_views`` directions), ``gait.gif`` (one walking cycle),
     ``history.json``, ``eval/<frame>.png`` (render | ground truth) and ``eval.json`` (per
     held-out view: PSNR in the person's box, mask IoU, the constant-colour baseline); with pose
-    refinement (``refine.lr > 0``) also ``poses_refined.json`` (every frame's refined pose, the
-    ``poses.json`` format, file paths naming the frames) and ``pose_refinement.json`` (how far it moved
-    the trained and the held-out frames' joints, ``nsim.human.refine.pose_change``). No file
-    holds a timing, so a rerun on CPU writes the same bytes.
+    refinement (``refine.lr > 0``) or the held-out fit (``refine.held_out_steps > 0``) also
+    ``poses_refined.json`` (every frame's pose, the ``poses.json`` format, file paths naming the frames:
+    :meth:`HumanTrainer.refined_poses` — the trained frames refined, or as given when refinement is off; the
+    held-out frames fitted to their own images with the held-out fit, else moved by their neighbours) and
+    ``pose_refinement.json`` (how far those poses are from the given ones, trained and held-out frames apart,
+    ``nsim.human.refine.pose_change``). With the held-out fit, eval.json scores the held-out views at the fitted
+    poses (``psnr_box``, ``mask_iou``) and at the poses as given (``psnr_box_given_poses``,
+    ``mask_iou_given_poses``), per view and on average, and ``held_out_fit.json`` says how far the fit moved the
+    held-out poses from where it started (``moved``) and its loss at its first and last step. No file holds a
+    timing, so a rerun on CPU writes the same bytes.
     """
     from nsim.human.nerf import gait_frames, save_human_model, turntable
     from nsim.io.images import to_uint8, write_image
@@ -645,6 +767,14 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
                                   [f"frame {i} render", "ground truth"]))
         (out_dir / "eval.json").write_text(json.dumps({"views": ev["views"], "mean": ev["mean"]}, indent=1) + "\n")
         summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
+    fit = trainer.fit_held_out()
+    if fit is not None:
+        ids = torch.as_tensor(trainer.eval_ids)
+        fitted = {"steps": cfg.refine.held_out_steps, "frames": [int(i) for i in ids],
+                  "moved": pose_change(fit["start"][ids].double().cpu().numpy(), fit["poses"][ids].double().cpu().numpy()),
+                  "loss_first": fit["loss_first"], "loss_last": fit["loss_last"]}
+        (out_dir / "held_out_fit.json").write_text(json.dumps(fitted, indent=1) + "\n")
+        summary["held_out_fit"] = {m: round(x, 3) for m, x in fitted["moved"].items()}
     refined = trainer.refined_poses()
     if refined is not None:
         from nsim.human.data import POSES_REFINED_FILE, poses_from_joint_transforms, write_poses
@@ -656,9 +786,11 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
         names = tuple(trainer.data.names)
         skeleton = trainer.data.skeleton
         height = trainer.data.height_m if trainer.data.height_m is not None else skeleton.height_m()
+        source = "nsim human NeRF pose refinement" if trainer.refine is not None else "nsim human NeRF (poses as given)"
+        if fit is not None:
+            source += ", held-out frames fitted to their own images"
         write_poses(out_dir / POSES_REFINED_FILE, poses_from_joint_transforms(
-            skeleton, height, refined, file_paths=names, meta={"source": "nsim human NeRF pose refinement",
-                                                               "moved": moved}))
+            skeleton, height, refined, file_paths=names, meta={"source": source, "moved": moved}))
         (out_dir / "pose_refinement.json").write_text(json.dumps(moved, indent=1) + "\n")
         summary["pose_refinement"] = {k: {m: round(x, 3) for m, x in v.items()} for k, v in moved.items()}
     result.evaluation = summary

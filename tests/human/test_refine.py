@@ -106,6 +106,15 @@ def test_a_correction_every_frame_shares_is_no_correction():
         m.translation[:] = torch.tensor([0.1, 0.0, 0.2])
         out = m().double().numpy()
     np.testing.assert_allclose(out, T, atol=2e-6)
+    # without the mean taken (a per-frame fit against a frozen body) each frame's own correction applies
+    own = BodyPoseRefinement(torch.tensor(T), SKELETON.parents, subtract_mean=False)
+    own.load_state_dict(m.state_dict())
+    with torch.no_grad():
+        moved = own().double().numpy()
+        r, t = own.corrections()
+    assert torch.equal(r, own.rotation) and torch.equal(t, own.translation)
+    np.testing.assert_allclose(moved[:, 0, :3, 3], T[:, 0, :3, 3] + [0.1, 0.0, 0.2], atol=2e-6)
+    assert pose_change(T, moved)["rotation_deg_max"] > 10.0
 
 
 def test_bad_shapes_and_orders_are_refused():
