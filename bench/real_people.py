@@ -26,7 +26,8 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    ``HELD_OUT_STEPS`` unless a ``--set refine.held_out_steps=N`` says otherwise (0: no fit, and the two sets
    of keys agree); ``wall_seconds`` has the fits' times (``held_out_fit_fitted``, ``held_out_fit_truth``,
    included in the trainings'), ``held_out_fit`` how far they moved the held-out joints;
-5. with pose refinement on (``refine.lr > 0``, as the preset or ``--set`` says), the refined poses
+5. with pose refinement on (``refine.lr > 0``: the bench sets ``REFINE_LR``, the ``default`` preset's, for both
+   presets unless ``--set refine.lr=...`` says otherwise), the refined poses
    (``poses_refined.json``) are scored as in 3: ``mpjpe_cm`` is then the refined skeleton's (the
    pipeline's final fit) and ``mpjpe_cm_landmark_fit`` the landmark fit's before it, with both over
    the trained and the held-out frames and how far refinement moved them under ``pose_refinement``
@@ -36,7 +37,10 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
 60 frames, the ``default`` preset. ``--fit-only``: steps 1-3 alone (no training; the NeRF keys are
 null). ``--mask-threshold`` and ``--min-visibility`` set the person config's mask cut and the fit's
 visibility cut (their defaults otherwise); ``--no-mirror`` and ``--one-direction`` how the detector
-looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``). Prints a table; the
+looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``); ``--no-consistent-sides``
+fits the limbs' sides as the detector labels them (``consistent_sides``); ``--fit FIELD=VALUE`` sets a skeleton-fit
+weight (``FitConfig``; the earlier weights, before the sides were made consistent: ``--fit smooth_weight_image=0.5 --fit weight_3d=0.05``).
+Prints a table; the
 last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``,
 ``psnr_box_given_poses, psnr_box_gt_poses_given_poses, iou_render_given_poses`` (and more).
 """
@@ -64,6 +68,7 @@ from nsim.stages import capture, train_human  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
 HELD_OUT_STEPS = 400  # the held-out fit's steps the bench scores with (refine.held_out_steps), unless --set says
+REFINE_LR = 0.0005  # pose refinement while training (refine.lr, the default preset's), unless --set says otherwise
 
 
 def score_fit(person_dir: Path, capture_dir: Path) -> dict:
@@ -158,6 +163,8 @@ def main() -> None:
                     help="the person detector looks at each frame once, not also mirrored (mirror_landmarks=False)")
     ap.add_argument("--one-direction", action="store_true",
                     help="the person detector runs over the frames first to last only (both_directions=False)")
+    ap.add_argument("--no-consistent-sides", action="store_true",
+                    help="fit the detector's left and right limbs as it labels them (consistent_sides=False)")
     ap.add_argument("--fit", dest="fit_overrides", action="append", default=[], metavar="FIELD=VALUE",
                     help="a skeleton-fit setting (nsim.human.fit.FitConfig field, a number), e.g. smooth_weight=2")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -171,8 +178,9 @@ def main() -> None:
     cap_over = ["actor=true", "video=true"] + (["width=320", "height=240", "n_frames=30"] if q
                                                else ["width=480", "height=360", "n_frames=60"])
     steps = args.steps or (150 if q else None)
-    held_out = [] if any(o.split("=")[0].strip() == "refine.held_out_steps" for o in args.overrides) else [
-        f"refine.held_out_steps={HELD_OUT_STEPS}"]
+    given = {o.split("=")[0].strip() for o in args.overrides}
+    held_out = [f"{k}={v}" for k, v in (("refine.held_out_steps", HELD_OUT_STEPS), ("refine.lr", REFINE_LR))
+                if k not in given]
     th_over = [f"optim.num_threads={threads}"] + ([f"optim.steps={steps}"] if steps else []) + held_out + args.overrides
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -192,6 +200,8 @@ def main() -> None:
             person = dataclasses.replace(person, mirror_landmarks=False)
         if args.one_direction:
             person = dataclasses.replace(person, both_directions=False)
+        if args.no_consistent_sides:
+            person = dataclasses.replace(person, consistent_sides=False)
         if args.min_visibility is not None:
             person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, min_visibility=args.min_visibility))
         for item in args.fit_overrides:
@@ -215,6 +225,7 @@ def main() -> None:
             print(json.dumps({"quick": q, "fit_only": True, "mask_threshold": person.mask_threshold,
                               "min_visibility": person.fit.min_visibility, "fit": dataclasses.asdict(person.fit),
                               "mirror_landmarks": person.mirror_landmarks, "both_directions": person.both_directions,
+                              "consistent_sides": person.consistent_sides, "sides_relabelled": report["sides_relabelled"],
                               "camera": report["camera"],
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
