@@ -329,12 +329,14 @@ class FitConfig:
         the camera, so the smoothness must weigh more to weigh the same.
 
     smooth_weight_image (then smooth_weight, 0.5) and weight_3d were 0.5 and 0.05 until the legs' sides were
-    made consistent (``nsim.human.landmarks.consistent_sides``). Measured then on the test room's actor video
-    (60 frames at 480x360 / 30 at 320x240, both 10 fps; the detector's looks recorded once and fitted again),
-    PA-MPJPE in cm: 7.15 / 6.64 at (0.5, 0.05); at weight_3d 0.01 and smooth_weight_image 10 / 20 / 35 / 50 /
-    80 / 150: 7.16 / 6.33, 6.93 / 6.35, **6.81 / 6.25**, 6.75 / 6.37, 7.30 / 8.19, 8.39 / 10.25; weight_3d 0.02
-    at 35: 6.90 / 6.24. At 0.5 the term weighed almost nothing beside the image's (0.5 to 3.5 changed the error
-    by 0.0001 cm); too strong, it drags the swinging foot behind.
+    made consistent (``nsim.human.landmarks.consistent_sides``). On the test room's actor video (``bench/real_people.py
+    --fit-only [--quick] [--fit smooth_weight_image=0.5 --fit weight_3d=0.05]``; 60 frames at 480x360 / 30 at
+    320x240, both 10 fps), PA-MPJPE 7.24 / 6.45 cm with the old weights, 6.99 / 6.32 with these. A sweep over the
+    detector's looks recorded once and fitted again (a scratch harness, so its figures differ from the bench's by
+    0.1 cm), PA-MPJPE at weight_3d 0.01 and smooth_weight_image 10 / 20 / 35 / 50 / 80 / 150: 7.16 / 6.33,
+    6.93 / 6.35, **6.81 / 6.25**, 6.75 / 6.37, 7.30 / 8.19, 8.39 / 10.25 (weight_3d 0.02 at 35: 6.90 / 6.24).
+    At 0.5 the term weighed almost nothing beside the image's (0.5 to 3.5 changed the error by 0.0001 cm); too
+    strong, it drags the swinging foot behind.
     """
 
     smooth_weight: float = 0.5
