@@ -23,7 +23,8 @@ in the last ``holdout_last_fraction`` of the frames (a held-out part of the moti
 model never saw). Evaluation on held-out frames: PSNR inside the person's 2D box (the ground
 truth mask's bounding box grown by ``output.box_margin_px``) and mask IoU (opacity > 0.5 vs
 the mask), against two trivial predictions: the box filled with the mean person colour of the
-training frames (``psnr_box_baseline``) and the background alone (``psnr_box_background``).
+training frames (``psnr_box_baseline``) and the background alone (``psnr_box_background``, where the
+frames' background is known).
 With ``refine.held_out_steps > 0`` each held-out frame's pose is first fitted to its own image and mask
 with the model frozen (the protocol of Anim-NeRF, InstantAvatar and Vid2Avatar for novel poses whose
 estimates are off; :meth:`HumanTrainer.fit_held_out`), and the views are scored at the fitted poses and at
@@ -617,7 +618,10 @@ class HumanTrainer(ResumableTrainer):
                 sl = (slice(box[0], box[1]), slice(box[2], box[3]))
                 row["psnr_box"] = psnr(pred["rgb"][sl], gt[sl])
                 row["psnr_box_baseline"] = psnr(baseline[sl], gt[sl])
-                row["psnr_box_background"] = psnr(empty[sl], gt[sl])
+                if self.data.background is not None:
+                    # (without it the baseline's background is the frame itself: "nobody drawn" would score infinity,
+                    # which JSON cannot hold)
+                    row["psnr_box_background"] = psnr(empty[sl], gt[sl])
             if fit is not None:
                 given = self.render_view(i)
                 row["mask_iou_given_poses"] = mask_iou(given["alpha"] > 0.5, mask)

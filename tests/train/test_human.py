@@ -418,3 +418,19 @@ def test_cpu_and_cuda_agree_with_refinement(capture):
         assert abs(loss_c - loss_g) < 1e-3 * max(1.0, abs(loss_c))
     torch.testing.assert_close(gpu.refine.rotation.detach().cpu(), cpu.refine.rotation.detach(), atol=1e-4, rtol=1e-3)
     np.testing.assert_allclose(gpu.refined_poses(), cpu.refined_poses(), atol=1e-4)
+
+
+def test_without_a_known_background_eval_json_is_strict_json(capture, tmp_path):
+    """Frames without a known background composite over themselves: the background alone would score an infinite
+    PSNR, which is left out rather than written as ``Infinity`` (not JSON)."""
+    import dataclasses
+
+    data = dataclasses.replace(capture, background=None, digest="")
+    export_human(tmp_path / "out", train_human(data, micro_cfg(optim={"steps": 2}), tmp_path / "work"))
+
+    def refuse(name):
+        raise ValueError(f"eval.json holds {name}")
+
+    ev = json.loads((tmp_path / "out" / "eval.json").read_text(), parse_constant=refuse)
+    assert "psnr_box_background" not in ev["mean"] and np.isfinite(ev["mean"]["psnr_box"])
+    assert all("psnr_box_background" not in row for row in ev["views"])
