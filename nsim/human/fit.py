@@ -335,7 +335,7 @@ class FitConfig:
     detector's looks recorded once and fitted again (a scratch harness, so its figures differ from the bench's by
     0.1 cm), PA-MPJPE at weight_3d 0.01 and smooth_weight_image 10 / 20 / 35 / 50 / 80 / 150: 7.16 / 6.33,
     6.93 / 6.35, **6.81 / 6.25**, 6.75 / 6.37, 7.30 / 8.19, 8.39 / 10.25 (weight_3d 0.02 at 35: 6.90 / 6.24).
-    At 0.5 the term weighed almost nothing beside the image's (0.5 to 3.5 changed the error by 0.0001 cm); too
+    At 0.5 the term weighed almost nothing beside the image's (0.02 to 2 changed the error by 0.0001 cm); too
     strong, it drags the swinging foot behind.
     """
 
