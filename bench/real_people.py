@@ -38,7 +38,9 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
 null). ``--mask-threshold`` and ``--min-visibility`` set the person config's mask cut and the fit's
 visibility cut (their defaults otherwise); ``--no-mirror`` and ``--one-direction`` how the detector
 looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``); ``--no-consistent-sides``
-fits the limbs' sides as the detector labels them (``consistent_sides``); ``--fit FIELD=VALUE`` sets a skeleton-fit
+fits the limbs' sides as the detector labels them (``consistent_sides``); ``--cross`` also trains with the poses and
+masks crossed (the fitted poses with the capture's true masks, the true poses with MediaPipe's masks; key
+``crossed``), which splits the fitted model's gap into what its poses and what its masks cost; ``--fit FIELD=VALUE`` sets a skeleton-fit
 weight (``FitConfig``; the earlier weights, before the sides were made consistent: ``--fit smooth_weight_image=0.5 --fit weight_3d=0.05``).
 Prints a table; the
 last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``,
@@ -148,6 +150,25 @@ class _FitTimes(logging.Handler):
             self.seconds.append(float(record.held_out_fit_s))
 
 
+def cross_folders(person_dir: Path, truth_dir: Path, capture_dir: Path, tmp: Path) -> dict[str, Path]:
+    """``--cross``: the fitted folder with the capture's true masks, and the true folder (no background images)
+    with the fitted folder's masks (MediaPipe's) on the frames it kept (the others keep their true ones)."""
+    from nsim.human.data import HumanData
+
+    truth = HumanData.load(capture_dir)
+    poses_fitted = tmp / "fitted_poses_true_masks"
+    shutil.copytree(person_dir, poses_fitted)
+    for mask in (poses_fitted / "masks").glob("*.png"):
+        shutil.copyfile(truth.mask_paths[int(mask.stem.split("_")[-1])], mask)
+    poses_true = tmp / "true_poses_mediapipe_masks"
+    shutil.copytree(truth_dir, poses_true)
+    for k, mask in enumerate(HumanData.load(poses_true).mask_paths):
+        found = person_dir / "masks" / f"frame_{k:05d}.png"
+        if found.is_file():
+            shutil.copyfile(found, mask)
+    return {"fitted_poses_true_masks": poses_fitted, "true_poses_mediapipe_masks": poses_true}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -163,6 +184,9 @@ def main() -> None:
                     help="the person detector looks at each frame once, not also mirrored (mirror_landmarks=False)")
     ap.add_argument("--one-direction", action="store_true",
                     help="the person detector runs over the frames first to last only (both_directions=False)")
+    ap.add_argument("--cross", action="store_true",
+                    help="also train with the poses and masks crossed (fitted poses with the true masks, true poses "
+                         "with MediaPipe's masks): which of the two costs the fitted model more (key crossed)")
     ap.add_argument("--no-consistent-sides", action="store_true",
                     help="fit the detector's left and right limbs as it labels them (consistent_sides=False)")
     ap.add_argument("--fit", dest="fit_overrides", action="append", default=[], metavar="FIELD=VALUE",
@@ -258,6 +282,13 @@ def main() -> None:
                 fits[name] = json.loads(art.file("held_out_fit.json").read_text())["moved"]
             if (art.path / POSES_REFINED_FILE).is_file():
                 refined[name] = score_refined(art.path, person_dir if name == "fitted" else truth_dir, cap.path)
+        crossed = {}
+        if args.cross:  # which costs more, the fitted poses or MediaPipe's masks: each with the other's truth
+            for name, folder in cross_folders(person_dir, truth_dir, cap.path, tmp).items():
+                art = store.get(train_human.run(train_human.Inputs(folder=folder), cfg, ctx).human)
+                mean = json.loads(art.file("eval.json").read_text())["mean"]
+                crossed[name] = {k: round(mean[k], 4) for k in ("psnr_box", "mask_iou", "psnr_box_given_poses",
+                                                                "mask_iou_given_poses") if k in mean}
     print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s_person:.0f} s, "
           f"{report['frames_kept']} of {report['frames_in']} frames kept, height {report['height_m']:.2f} m, "
           f"camera height {report['camera_height_m']:.2f} m")
@@ -280,6 +311,8 @@ def main() -> None:
               f"{m.get('psnr_box_given_poses', m.get('psnr_box', nan)):12.2f} "
               f"{m.get('mask_iou_given_poses', m['mask_iou']):6.3f} {m['mask_iou_true_masks_given_poses']:6.3f} "
               f"{fit_s[name]:6.1f} {walls[name]:7.0f}")
+    for name, m in crossed.items():
+        print(f"{name}: PSNR box {m.get('psnr_box', nan):.2f}, render IoU {m['mask_iou']:.3f}")
     given = {name: {"psnr_box": m.get("psnr_box_given_poses", m.get("psnr_box", nan)),
                     "mask_iou": m.get("mask_iou_given_poses", m["mask_iou"])} for name, m in evals.items()}
     print(json.dumps({"quick": q, "steps": cfg.optim.steps, "threads": threads, "camera": report["camera"],
@@ -305,6 +338,7 @@ def main() -> None:
                       "iou_render_gt_poses_true_masks_given_poses":
                           round(evals["truth"]["mask_iou_true_masks_given_poses"], 4),
                       "held_out_fit": {name: {k: round(v, 3) for k, v in moved.items()} for name, moved in fits.items()},
+                      **({"crossed": crossed} if crossed else {}),
                       "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s_person, 1),
                                        **{f"train_{k}": round(v, 1) for k, v in walls.items()},
                                        **{f"held_out_fit_{k}": round(v, 1) for k, v in fit_s.items()}}}))
