@@ -260,12 +260,12 @@ def unmirror(ob: FrameObservation, width: int) -> FrameObservation:
                             np.ascontiguousarray(ob.person_mask[:, ::-1]), people)
 
 
-def _torso_px(uv: np.ndarray) -> float:
-    """The length in pixels from the hips' midpoint to the shoulders' of ``(L, 2)`` landmarks."""
+def _torso_length(points: np.ndarray) -> np.ndarray:
+    """The length ``(...)`` from the hips' midpoint to the shoulders' of landmarks ``(..., L, D)`` (pixels or metres)."""
     i = {n: LANDMARK_NAMES.index(n) for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip")}
-    shoulders = 0.5 * (uv[i["left_shoulder"]] + uv[i["right_shoulder"]])
-    hips = 0.5 * (uv[i["left_hip"]] + uv[i["right_hip"]])
-    return float(np.linalg.norm(shoulders - hips))
+    shoulders = 0.5 * (points[..., i["left_shoulder"], :] + points[..., i["right_shoulder"], :])
+    hips = 0.5 * (points[..., i["left_hip"], :] + points[..., i["right_hip"], :])
+    return np.linalg.norm(shoulders - hips, axis=-1)
 
 
 def average_looks(first: FrameObservation | None, second: FrameObservation | None,
@@ -279,7 +279,7 @@ def average_looks(first: FrameObservation | None, second: FrameObservation | Non
     if first is None or second is None:
         return first if second is None else second
     apart = np.nanmedian(np.linalg.norm(first.image_uv_px - second.image_uv_px, axis=-1))
-    if not (apart <= max_disagreement * _torso_px(first.image_uv_px)):
+    if not (apart <= max_disagreement * float(_torso_length(first.image_uv_px))):
         return first
     mask = 0.5 * (np.asarray(first.person_mask, np.float32) + np.asarray(second.person_mask, np.float32))
     return FrameObservation(0.5 * (first.image_uv_px + second.image_uv_px), 0.5 * (first.body_m + second.body_m),
@@ -344,9 +344,8 @@ motion smoother by more than this per frame."""
 def _side_swap_order(parts: tuple[str, ...]) -> np.ndarray:
     """The landmark order ``(L,)`` that exchanges the left and right landmarks of ``parts``."""
     order = np.arange(len(LANDMARK_NAMES))
-    for p in parts:
-        left, right = LANDMARK_NAMES.index(f"left_{p}"), LANDMARK_NAMES.index(f"right_{p}")
-        order[left], order[right] = right, left
+    sided = [LANDMARK_NAMES.index(f"{side}_{p}") for p in parts for side in ("left", "right")]
+    order[sided] = np.asarray(MIRRORED_LANDMARKS)[sided]
     return order
 
 
@@ -366,9 +365,7 @@ def limb_side_switches(body_m: np.ndarray, parts: tuple[str, ...], switch_cost: 
     F = body.shape[0]
     if F < 3:
         return np.zeros(F, dtype=bool)
-    i = {n: LANDMARK_NAMES.index(n) for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip")}
-    torso = np.linalg.norm(0.5 * (body[:, i["left_shoulder"]] + body[:, i["right_shoulder"]])
-                           - 0.5 * (body[:, i["left_hip"]] + body[:, i["right_hip"]]), axis=-1)
+    torso = _torso_length(body)
     torso = np.where(torso > 1e-6, torso, np.nanmedian(torso) if np.isfinite(torso).any() else 1.0)
     sel = [LANDMARK_NAMES.index(f"{s}_{p}") for p in parts for s in ("left", "right")]
     order = _side_swap_order(parts)
@@ -522,5 +519,5 @@ class MediaPipePoseDetector:
 
 __all__ = ["LANDMARK_BONES", "LANDMARK_NAMES", "LIMB_SIDES", "MIRRORED_LANDMARKS", "PEOPLE_EXTRA", "SIDE_SWITCH_COST",
            "TRAINING_MASK_THRESHOLD", "FrameObservation", "MediaPipePoseDetector", "Observations", "PoseDetector",
-           "average_looks", "confirmed_person", "consistent_sides", "limb_side_switches", "observe", "other_people", "other_people_blobs", "person_training_mask",
-           "unmirror"]
+           "average_looks", "confirmed_person", "consistent_sides", "limb_side_switches", "observe", "other_people",
+           "other_people_blobs", "person_training_mask", "unmirror"]

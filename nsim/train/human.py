@@ -449,11 +449,7 @@ class HumanTrainer(ResumableTrainer):
         cfg = self.cfg
         frames, v, u, g = self.batch(step)
         out = self.render_rays(frames, v, u, generator=g, poses=self.poses())
-        target = self.images[frames, v, u].float() / 255.0
-        mask = self.masks[frames, v, u].float()
-        mse = torch.mean((out.rgb - target) ** 2)
-        mask_loss = torch.mean((out.alpha[0] - mask) ** 2)
-        loss = mse + cfg.loss.mask_weight * mask_loss
+        loss, mse, mask_loss = self.image_loss(out, frames, v, u)
         extra = {"mask": float(mask_loss.detach())}
         if cfg.loss.blend_weight > 0 and self.model.blend_log_weights.requires_grad:
             reg = torch.mean((self.model.blend_log_weights - self.blend_init) ** 2)
@@ -468,6 +464,15 @@ class HumanTrainer(ResumableTrainer):
         loss.backward()
         self.optimizer.step()
         return self._finish_step(t0, loss, mse, extra)
+
+    def image_loss(self, out, frames: Tensor, v: Tensor, u: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(loss, mse, mask_loss)`` of a render ``out`` (``render_rays``) of pixels ``(frames, v, u)``: the
+        composite's mean squared error + ``loss.mask_weight`` x that of the person's opacity against the mask."""
+        target = self.images[frames, v, u].float() / 255.0
+        mask = self.masks[frames, v, u].float()
+        mse = torch.mean((out.rgb - target) ** 2)
+        mask_loss = torch.mean((out.alpha[0] - mask) ** 2)
+        return mse + self.cfg.loss.mask_weight * mask_loss, mse, mask_loss
 
     def loop_threads(self) -> int:
         """torch's intra-op threads while the training loop (and :func:`export_human`) runs: ``optim.num_threads``
@@ -519,7 +524,8 @@ class HumanTrainer(ResumableTrainer):
         changes (its parameters are frozen for the fit and their ``requires_grad`` restored after).
 
         Returns ``{"poses": (N, J, 4, 4) every frame (the held-out ones fitted, float32, on the device),
-        "start": the same before the fit, "loss_first", "loss_last": the fit's loss at its first and last
+        "start": the same before the fit, "moved": how far the fit moved the held-out joints
+        (``nsim.human.refine.pose_change``), "loss_first", "loss_last": the fit's loss at its first and last
         step, "seconds": its wall time}``.
         """
         r = self.cfg.refine
@@ -545,9 +551,7 @@ class HumanTrainer(ResumableTrainer):
                 frames, v, u = self._draw(g, pools, self.eval_ids)
                 poses = start.index_put((ids,), fit())
                 out = self.render_rays(frames, v, u, generator=g, poses=poses)
-                target = self.images[frames, v, u].float() / 255.0
-                mask = self.masks[frames, v, u].float()
-                loss = (torch.mean((out.rgb - target) ** 2) + self.cfg.loss.mask_weight * torch.mean((out.alpha[0] - mask) ** 2)
+                loss = (self.image_loss(out, frames, v, u)[0]
                         + fit.regulariser(r.held_out_rotation_weight, r.held_out_translation_weight, 0.0))
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
@@ -558,9 +562,9 @@ class HumanTrainer(ResumableTrainer):
                 p.requires_grad_(flag)
         with torch.no_grad():
             poses = start.index_put((ids,), fit())
-        self.held_out_fit = {"poses": poses, "start": start, "loss_first": losses[0], "loss_last": losses[-1],
-                             "seconds": time.perf_counter() - t0}
         moved = pose_change(start[ids].double().cpu().numpy(), poses[ids].double().cpu().numpy())
+        self.held_out_fit = {"poses": poses, "start": start, "moved": moved, "loss_first": losses[0],
+                             "loss_last": losses[-1], "seconds": time.perf_counter() - t0}
         log.info("held-out pose fit: %d frames, %d steps, loss %.5f -> %.5f, joints moved %.2f cm on average, in %.1f s",
                  len(self.eval_ids), r.held_out_steps, losses[0], losses[-1], moved["joint_shift_cm_mean"],
                  self.held_out_fit["seconds"], extra={"held_out_fit_s": self.held_out_fit["seconds"]})
@@ -773,10 +777,8 @@ def export_human(out_dir: str | os.PathLike, result: HumanTrainResult) -> dict[s
         summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
     fit = trainer.fit_held_out()
     if fit is not None:
-        ids = torch.as_tensor(trainer.eval_ids)
-        fitted = {"steps": cfg.refine.held_out_steps, "frames": [int(i) for i in ids],
-                  "moved": pose_change(fit["start"][ids].double().cpu().numpy(), fit["poses"][ids].double().cpu().numpy()),
-                  "loss_first": fit["loss_first"], "loss_last": fit["loss_last"]}
+        fitted = {"steps": cfg.refine.held_out_steps, "frames": [int(i) for i in trainer.eval_ids],
+                  "moved": fit["moved"], "loss_first": fit["loss_first"], "loss_last": fit["loss_last"]}
         (out_dir / "held_out_fit.json").write_text(json.dumps(fitted, indent=1) + "\n")
         summary["held_out_fit"] = {m: round(x, 3) for m, x in fitted["moved"].items()}
     refined = trainer.refined_poses()
