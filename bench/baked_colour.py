@@ -6,12 +6,13 @@ The baked renderer's cost is its colour: ``field_samples: 16`` queries the scene
 10x the NeRF's rays/s leaves one or two microseconds a ray for colour. The cheapest colour there is reads a baked
 texture once a ray, at the point where the ray meets the surface (SNeRG's deferred shading reduced to one sample).
 This script measures how good that can be, whatever the texture's storage: it fits the most flexible texture that
-is still one lookup (instant-NGP's multiresolution hash grid, the scene field's own resolution, and a 32-wide
-decoder: ``nsim.fields``) to the training images' pixels at their rays' surface points, and scores the held-out
+is still one lookup (instant-NGP's multiresolution hash grid: 12 levels, 2^19 rows, finest ``--max-resolution``
+cells across the box, and a 32-wide decoder: ``nsim.fields``) to the training images' pixels at their rays' surface points, and scores the held-out
 views at theirs, for two surfaces:
 
 - ``nerf``: each ray's median depth from the NeRF itself (``method: proposal``), the best geometry nsim has;
-- ``baked``: each ray's median depth from the baked density alone (``nsim bake``'s preset, no field queries).
+- ``baked``: each ray's median depth from the baked density alone (``nsim bake``'s default preset with
+  ``--bake-set`` overrides, e.g. ``voxel_m=0.02 cull_voxel_m=0.04`` for a 2 cm lattice; no field queries).
 
 Printed: each one's held-out PSNR against the images and against the NeRF's renders, beside the NeRF's own, and
 the texture lookup's cost a ray (one thread, CPU seconds) beside the NeRF's. Uses the default capture and the
@@ -65,6 +66,10 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=None, help="texture fitting steps (default 2000, 200 quick)")
     ap.add_argument("--stride", type=int, default=None, help="training pixels: every k-th both ways (default 2)")
     ap.add_argument("--heldout-views", type=int, default=None, help="held-out views scored (default 4, 2 quick)")
+    ap.add_argument("--max-resolution", type=int, default=1024, help="the texture's finest hash-grid level, cells "
+                    "across the scene box (the scene field's: 2048)")
+    ap.add_argument("--bake-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override of the bake preset for the baked surface (repeatable), e.g. voxel_m=0.02")
     args = ap.parse_args()
     q = args.quick
     steps = args.steps or (200 if q else 2000)
@@ -83,11 +88,13 @@ def main() -> None:
                                   overrides=["video=false"])
             cap_id = capture.run(capture.Inputs(), cap_cfg, ctx).capture
         scene_id = get_scene(ctx, cap_id, args.scene, q)
-        res = measure(ctx, cap_id, scene_id, steps, stride, n_views)
-    print(json.dumps({"quick": q, "steps": steps, "stride": stride, **res}))
+        res = measure(ctx, cap_id, scene_id, steps, stride, n_views, args.max_resolution, args.bake_set)
+    print(json.dumps({"quick": q, "steps": steps, "stride": stride, "max_resolution": args.max_resolution,
+                      "bake_set": args.bake_set, **res}))
 
 
-def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int, n_views: int) -> dict:
+def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int, n_views: int, max_res: int,
+            bake_set: list[str]) -> dict:
     import dataclasses
 
     import torch
@@ -106,8 +113,10 @@ def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int
     scene, cap = store.get(scene_id), store.get(cap_id)
     model = load_model(scene.path, "cpu")
     grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"))
-    baked_id = bake.run(bake.Inputs(scene=scene_id), load_config(bake.Config, stage="bake", preset="default"), ctx).baked
+    bcfg = load_config(bake.Config, stage="bake", preset="default", overrides=bake_set)
+    baked_id = bake.run(bake.Inputs(scene=scene_id), bcfg, ctx).baked
     baked = BakedScene.load(store.get(baked_id).path)
+    print(f"bake {baked_id[:12]}: {baked.n_bricks} bricks, lattice {float(baked.voxel_m.max()):.3f} m", flush=True)
     # the baked density alone: no field window, no NeRF fallback (one march a ray, as a texture lookup would need)
     baked = dataclasses.replace(baked, field_samples=0, nerf_fallback_share=None, nerf_fallback_accumulation=None)
     doc = json.loads(scene.file("scene.json").read_text())
@@ -160,7 +169,7 @@ def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int
             ys.append(torch.as_tensor(gt[idx[hit.numpy()]]))
         u_all, y_all = torch.cat(xs), torch.cat(ys)
         gen = torch.Generator().manual_seed(0)
-        enc = HashEncoding(12, 2, 19, 16, 2048, generator=gen)
+        enc = HashEncoding(12, 2, 19, 16, max_res, generator=gen)
         dec = MLP(enc.n_output_dims, 32, 1, 3, gen)
         opt = torch.optim.Adam([{"params": enc.parameters(), "eps": 1e-15}, {"params": dec.parameters()}], lr=1e-2)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.1 ** (s / steps))
