@@ -39,22 +39,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nsim.config import load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
-from nsim.stages import capture, train_scene  # noqa: E402
+from nsim.stages import capture  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
-
-def get_scene(ctx: RunContext, cap_id: str, scene: str | None, quick: bool) -> str:
-    """``--scene``, else ``scene/bench-gt``, else a scene trained here (``bench/render.py``'s rule)."""
-    store = ctx.store
-    if scene is not None:
-        return store.resolve(scene, kind="scene-checkpoint")
-    try:
-        return store.resolve("scene/bench-gt", kind="scene-checkpoint")
-    except Exception:  # noqa: BLE001 - not there: train one
-        pass
-    overrides = ["optim.steps=300"] if quick else []
-    cfg = load_config(train_scene.Config, stage="train_scene", preset="tiny" if quick else "cpu", overrides=overrides)
-    return train_scene.run(train_scene.Inputs(poses=cap_id), cfg, ctx).scene
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render import get_scene  # noqa: E402  (bench/render.py: --scene, else scene/bench-gt, else train one)
 
 
 def main() -> None:
