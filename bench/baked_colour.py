@@ -90,7 +90,7 @@ def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int
 
     from nsim.fields.hash_encoding import HashEncoding
     from nsim.fields.mlp import MLP
-    from nsim.io.images import read_image
+    from nsim.io.images import read_image, to_float
     from nsim.io.transforms_json import read_transforms
     from nsim.metrics.image import psnr
     from nsim.rendering import OccupancyGrid, load_model
@@ -120,42 +120,44 @@ def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int
         if size and int(size[0]) != cam.width:
             cam = cam.scaled(int(size[0]) / cam.width)
         rays, _, valid = camera_rays(model, cam, frames[i].cam_to_world)
-        gt = read_image(cap.path / frames[i].file_path).astype(np.float32)
-        gt = np.clip(gt / (255.0 if gt.max() > 1.5 else 1.0), 0.0, 1.0).reshape(-1, 3)
-        return cam, rays, valid, gt
+        return cam, rays, valid, to_float(read_image(cap.path / frames[i].file_path)).reshape(-1, 3)
 
-    def nerf(rays):
-        return render_rays(model, rays, "proposal", grid, MarchConfig(), 8192)
-
-    def surface(anchor: str, rays):
-        """(hit (R,) bool, points (R, 3)) where each ray meets the surface: its median depth."""
-        out = nerf(rays) if anchor == "nerf" else render_baked(baked, rays, 65536, colour=False)
+    def ends(out, rays):
+        """(hit (R,) bool, points (R, 3)) where each ray meets the surface of a render ``out``: its median depth."""
         return out.accumulation > 0.5, rays.origins + rays.dirs * out.depth_median[:, None]
 
+    @torch.no_grad()
+    def surface(anchor: str, rays):
+        out = (render_rays(model, rays, "proposal", grid, MarchConfig(), 8192) if anchor == "nerf"
+               else render_baked(baked, rays, 65536, colour=False))
+        return out, ends(out, rays)
+
     lo, hi = model.aabb[0].cpu(), model.aabb[1].cpu()
-    # the held-out views: the NeRF's renders and its cost a ray
+    # the held-out views: the NeRF's renders (its surface there too) and its cost a ray
     views, nerf_s, nerf_n = [], 0.0, 0
     for i in held:
-        cam, rays, valid, gt = view(i)
+        _cam, rays, _valid, gt = view(i)
         t0 = time.process_time()
-        with torch.no_grad():
-            rgb = nerf(rays).rgb.clamp(0, 1).numpy()
+        out, nerf_ends = surface("nerf", rays)
         nerf_s, nerf_n = nerf_s + time.process_time() - t0, nerf_n + len(rays)
-        views.append((cam, rays, valid, gt, rgb))
-    res = {"nerf_psnr": float(np.mean([psnr(v[4], v[3]) for v in views])),
+        views.append((rays, gt, out.rgb.clamp(0, 1).numpy(), nerf_ends))
+    res = {"nerf_psnr": float(np.mean([psnr(v[2], v[1]) for v in views])),
            "nerf_us_per_ray": 1e6 * nerf_s / max(nerf_n, 1)}
     print(f"NeRF: held-out PSNR {res['nerf_psnr']:.2f} dB over {len(views)} views", flush=True)
+    # the training pixels, every stride-th both ways: rays and colours, read once for both surfaces
+    pixels = []
+    for i in train:
+        cam, rays, valid, gt = view(i)
+        pick = np.zeros((cam.height, cam.width), bool)
+        pick[::stride, ::stride] = True
+        idx = np.flatnonzero(pick.reshape(-1) & valid.numpy())
+        pixels.append((rays[torch.as_tensor(idx)], torch.as_tensor(gt[idx])))
     for anchor in ("nerf", "baked"):
         xs, ys = [], []
-        for i in train:
-            cam, rays, valid, gt = view(i)
-            pick = np.zeros((cam.height, cam.width), bool)
-            pick[::stride, ::stride] = True
-            idx = np.flatnonzero(pick.reshape(-1) & valid.numpy())
-            with torch.no_grad():
-                hit, x = surface(anchor, rays[torch.as_tensor(idx)])
+        for rays, colours in pixels:
+            _, (hit, x) = surface(anchor, rays)
             xs.append(((x[hit] - lo) / (hi - lo)).float())
-            ys.append(torch.as_tensor(gt[idx[hit.numpy()]]))
+            ys.append(colours[hit])
         u_all, y_all = torch.cat(xs), torch.cat(ys)
         gen = torch.Generator().manual_seed(0)
         enc = HashEncoding(12, 2, 19, 16, max_res, generator=gen)
@@ -173,8 +175,8 @@ def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int
         fit_s = time.perf_counter() - t0
         scores, vs_nerf, look_s, look_n = [], [], 0.0, 0
         with torch.no_grad():
-            for _cam, rays, _valid, gt, nerf_rgb in views:
-                hit, x = surface(anchor, rays)
+            for rays, gt, nerf_rgb, nerf_ends in views:
+                hit, x = nerf_ends if anchor == "nerf" else surface(anchor, rays)[1]
                 t0 = time.process_time()
                 rgb = torch.sigmoid(dec(enc(((x - lo) / (hi - lo)).float())))
                 look_s, look_n = look_s + time.process_time() - t0, look_n + len(rays)
