@@ -67,7 +67,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -83,6 +85,9 @@ from nsim.fields.mlp import MLP
 from nsim.rendering import volume
 from nsim.rendering.model import BACKGROUNDS, RaySamples, RenderOutput
 from nsim.rendering.rays import Rays
+from nsim.rendering.surface import BakedSurface, SurfaceTexture, render_surface
+
+log = logging.getLogger(__name__)
 
 FORMAT = 1
 BAKED_FILE = "baked.json"
@@ -130,10 +135,38 @@ class BakeConfig:
     cull_voxel_m: float | None = param(None, gt=0.0, le=1.0, help="visibility culling: the voxels of the first bake, "
                                                                 "the one culled; voxel_m bakes only the kept cells "
                                                                 "(null: voxel_m, one bake)")
+    surface: bool = param(False, help="also bake a surface (nsim.rendering.surface): a mesh of the baked density "
+                                      "fitted to the NeRF's median depths and a hash-grid texture; cameras, depth "
+                                      "and LiDAR then render from it (one Embree cast and one lookup a ray)")
+    surface_level: float | None = param(20.0, gt=0.0, help="surface: the density (1/m) whose iso-surface is meshed "
+                                        "(null: the field's median density at the NeRF's median depth on the "
+                                        "training rays)")
+    surface_min_area_m2: float = param(0.0, ge=0.0, help="surface: mesh pieces smaller than this are dropped")
+    surface_stride: int = param(1, ge=1, le=64, help="surface: every k-th pixel (both ways) of each training image "
+                                                     "is a ray the mesh and texture are fitted to")
+    surface_fit_passes: int = param(4, ge=0, le=32, help="surface: Gauss-Newton passes fitting the mesh to the "
+                                                         "NeRF's median depths (0: marching cubes as it is)")
+    surface_fit_ridge: float = param(0.1, gt=0.0, help="surface: ridge weight on each vertex's step (m^2 of "
+                                                       "squared depth residual per m^2 of step)")
+    surface_fit_gate_m: float = param(0.05, gt=0.0, help="surface: rays whose hit lies farther than this from the "
+                                                         "NeRF's depth are left out of a pass (another surface)")
+    surface_fit_step_m: float = param(0.03, gt=0.0, help="surface: the most a vertex moves in one pass")
+    texture_from: str = param("images", choices=("images", "nerf"), help="surface texture: fitted to the training "
+                                                                         "images' pixels or to the NeRF's colours "
+                                                                         "of them")
+    texture_levels: int = param(12, ge=1, le=24, help="surface texture: hash-grid levels")
+    texture_log2_size: int = param(19, ge=8, le=24, help="surface texture: log2 of each level's rows")
+    texture_max_resolution: int = param(1024, ge=16, le=65536, help="surface texture: the finest level's cells "
+                                                                    "across the scene box")
+    texture_width: int = param(32, ge=4, le=256, help="surface texture: the decoder's hidden width")
+    texture_steps: int = param(2000, ge=1, help="surface texture: Adam steps")
+    texture_batch: int = param(16384, ge=16, help="surface texture: points per step")
+    texture_lr: float = param(0.01, gt=0.0, help="surface texture: the first learning rate (falls tenfold over "
+                                                 "the steps)")
 
     def check(self) -> None:
         """The settings that depend on each other (checked when baking, not per ``--set``: their order is free)."""
-        if self.feature_dtype == "none" and self.field_samples == 0:
+        if self.feature_dtype == "none" and self.field_samples == 0 and not self.surface:
             raise ConfigError("feature_dtype: none stores no colour features; it needs field_samples > 0 (colour "
                               "from the scene field)")
 
@@ -222,6 +255,7 @@ class BakedScene:
     nerf_fallback_voxels: float = 4.0
     nerf_fallback_accumulation: float | None = None
     field: nn.Module | None = None
+    surface: BakedSurface | None = None
     block_occupied: Tensor = dataclasses.field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -258,13 +292,14 @@ class BakedScene:
         return dataclasses.replace(self, aabb=self.aabb.to(device), brick_index=self.brick_index.to(device),
                                    density=self.density.to(device), features=self.features.to(device),
                                    decoder=self.decoder.moved(device),
-                                   background_rgb=self.background_rgb.to(device))
+                                   background_rgb=self.background_rgb.to(device),
+                                   surface=None if self.surface is None else self.surface.to(device))
 
     @property
     def uses_field(self) -> bool:
         """Whether rendering queries the scene field (``field_samples`` or ``field_color_samples``): then a
-        renderer attaches it (:meth:`with_field`)."""
-        return self.field_samples > 0 or self.field_color_samples > 0
+        renderer attaches it (:meth:`with_field`). Never with a surface, which renders every ray."""
+        return self.surface is None and (self.field_samples > 0 or self.field_color_samples > 0)
 
     @property
     def falls_back(self) -> bool:
@@ -278,7 +313,8 @@ class BakedScene:
         return dataclasses.replace(self, field=field)
 
     def nbytes(self) -> int:
-        return sum(int(t.numel() * t.element_size()) for t in (self.brick_index, self.density, self.features))
+        grid = sum(int(t.numel() * t.element_size()) for t in (self.brick_index, self.density, self.features))
+        return grid + (0 if self.surface is None else self.surface.nbytes())
 
     # -- files
     def save(self, out_dir: str | Path, extra: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -293,6 +329,14 @@ class BakedScene:
             np.save(out_dir / f"color_layer{k}_weight.npy", w, allow_pickle=False)
             np.save(out_dir / f"color_layer{k}_bias.npy", b, allow_pickle=False)
             decoder_files.append([f"color_layer{k}_weight.npy", f"color_layer{k}_bias.npy"])
+        surface = None
+        if self.surface is not None:
+            np.save(out_dir / "surface_vertices.npy", self.surface.vertices.astype(np.float32), allow_pickle=False)
+            np.save(out_dir / "surface_faces.npy", self.surface.faces.astype(np.int32), allow_pickle=False)
+            for stem, arr in self.surface.texture.arrays().items():
+                np.save(out_dir / f"{stem}.npy", arr, allow_pickle=False)
+            surface = {"vertices": len(self.surface.vertices), "faces": len(self.surface.faces),
+                       "texture": self.surface.texture.settings, **self.surface.stats}
         doc = {
             "format": FORMAT,
             "units": "metres; density in 1/m",
@@ -318,6 +362,7 @@ class BakedScene:
             "nerf_fallback_accumulation": self.nerf_fallback_accumulation,
             "background": self.background,
             "background_rgb": [float(c) for c in self.background_rgb.cpu()],
+            **({"surface": surface} if surface is not None else {}),
             "layout": "brick_index[i, j, k]: brick of occupancy cell (i, j, k) or -1; density[n, (a * (B + 1) + b) * "
                       "(B + 1) + c] and features[n, ...]: lattice point cell_min + (a, b, c) * voxel of brick n",
             **self.meta,
@@ -357,7 +402,9 @@ class BakedScene:
                 weights.append(torch.as_tensor(_read_array(baked_dir / wf, None, np.float32)))
                 biases.append(torch.as_tensor(_read_array(baked_dir / bf, None, np.float32)))
             decoder = ColorDecoder(weights, biases, int(doc["sh_degree"]))
-            if g == 0 and int(doc.get("field_samples", 0)) == 0:
+            surface = _load_surface(baked_dir, doc["surface"], aabb=torch.tensor(doc["aabb_m"], dtype=torch.float32)) \
+                if doc.get("surface") is not None else None
+            if g == 0 and int(doc.get("field_samples", 0)) == 0 and surface is None:
                 raise ValueError("no features stored (feature_dtype none) and field_samples 0: no colour")
             if g and decoder.geo_dim != g:
                 raise ValueError(f"decoder reads {decoder.geo_dim} features, the grid holds {g}")
@@ -370,7 +417,7 @@ class BakedScene:
                      "feature_dtype", "sh_degree", "decoder_layers", "step_voxels", "block_cells", "stop_transmittance",
                      "color_skip_weight", "field_color_samples", "field_samples", "field_window_voxels",
                      "nerf_fallback_share", "nerf_fallback_voxels", "nerf_fallback_accumulation", "background",
-                     "background_rgb", "layout"}
+                     "background_rgb", "layout", "surface"}
             baked = cls(aabb=aabb, brick_index=torch.as_tensor(index), density=torch.as_tensor(density),
                         features=torch.as_tensor(features), bricks_per_side=b, decoder=decoder,
                         step_voxels=float(doc["step_voxels"]), block_cells=int(doc["block_cells"]),
@@ -385,10 +432,27 @@ class BakedScene:
                         nerf_fallback_accumulation=(None if doc.get("nerf_fallback_accumulation") is None
                                                     else float(doc["nerf_fallback_accumulation"])),
                         background_rgb=torch.tensor(doc["background_rgb"], dtype=torch.float32),
-                        meta={k: v for k, v in doc.items() if k not in known})
+                        surface=surface, meta={k: v for k, v in doc.items() if k not in known})
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{where}: not a readable baked scene ({exc})") from None
         return baked.to(device)
+
+
+def _load_surface(baked_dir: Path, doc: dict, aabb: Tensor) -> BakedSurface:
+    """The surface ``BakedScene.save`` wrote (``ValueError`` naming what is wrong)."""
+    n_v, n_f = int(doc["vertices"]), int(doc["faces"])
+    vertices = np.array(_read_array(baked_dir / "surface_vertices.npy", (n_v, 3), np.float32))
+    faces = np.array(_read_array(baked_dir / "surface_faces.npy", (n_f, 3), np.int32))
+    if not np.isfinite(vertices).all():
+        raise ValueError("surface_vertices.npy: non-finite values")
+    if faces.size and (faces.min() < 0 or faces.max() >= n_v):
+        raise ValueError(f"surface_faces.npy: vertex indices outside 0..{n_v - 1}")
+    settings = doc["texture"]
+    stems = ["texture_table"] + [f"texture_layer{k}_{w}" for k in range(2) for w in ("weight", "bias")]
+    arrays = {stem: _read_array(baked_dir / f"{stem}.npy", None, np.float32) for stem in stems}
+    texture = SurfaceTexture.from_arrays(aabb, settings, arrays)
+    return BakedSurface(vertices, faces, texture, {k: v for k, v in doc.items()
+                                                   if k not in ("vertices", "faces", "texture")})
 
 
 def _read_array(path: Path, shape: tuple[int, ...] | None, dtype) -> np.ndarray:
@@ -544,20 +608,30 @@ def cull(baked: BakedScene, visibility: Tensor, min_weight: float) -> BakedScene
                                meta=meta)
 
 
-def training_rays(model, frames, stride: int) -> Rays:
+def training_rays(model, frames, stride: int, images: list | None = None) -> Rays | tuple[Rays, Tensor]:
     """The rays of every ``stride``-th pixel (both directions) of ``frames`` (``(camera, cam_to_world)`` pairs, the
-    images the scene was trained on), clipped as the scene model clips its own rays."""
+    images the scene was trained on), clipped as the scene model clips its own rays. With ``images`` (one ``(H, W,
+    3)`` uint8 image a frame, at its camera's size): also their colours ``(R, 3)`` in [0, 1]."""
     from nsim.rendering.renderer import camera_rays
 
-    parts = []
-    for camera, c2w in frames:
+    parts, colours = [], []
+    for k, (camera, c2w) in enumerate(frames):
         rays, _, valid = camera_rays(model, camera, c2w)
         pick = torch.zeros(camera.height, camera.width, dtype=torch.bool, device=valid.device)
         pick[::stride, ::stride] = True
-        parts.append(rays[torch.nonzero(pick.view(-1) & valid.bool(), as_tuple=True)[0]])
+        idx = torch.nonzero(pick.view(-1) & valid.bool(), as_tuple=True)[0]
+        parts.append(rays[idx])
+        if images is not None:
+            img = np.asarray(images[k])
+            if img.shape[:2] != (camera.height, camera.width):
+                raise InputError(f"bake: training image {k} is {img.shape[1]}x{img.shape[0]}, its camera "
+                                 f"{camera.width}x{camera.height}")
+            flat = torch.as_tensor(img.reshape(-1, img.shape[-1])[:, :3])
+            colours.append(flat[idx.cpu()].float().div(255.0))
     if not parts:
-        raise InputError("bake: visibility culling needs the training cameras, and there are none")
-    return Rays(*(torch.cat([getattr(r, f) for r in parts]) for f in ("origins", "dirs", "near", "far")))
+        raise InputError("bake: visibility culling and the surface need the training cameras, and there are none")
+    rays = Rays(*(torch.cat([getattr(r, f) for r in parts]) for f in ("origins", "dirs", "near", "far")))
+    return rays if images is None else (rays, torch.cat(colours).to(rays.origins.device))
 
 
 def decoder_of(model) -> ColorDecoder:
@@ -603,10 +677,89 @@ def bake_passes(model, grid, cfg: BakeConfig, frames, evaluate) -> BakedScene:
     return dataclasses.replace(fine, meta=meta)
 
 
+def nerf_targets(model, grid, rays: Rays, chunk: int = 8192) -> tuple[Tensor, Tensor, Tensor]:
+    """The NeRF's median depth ``(R,)``, accumulation ``(R,)`` and colour ``(R, 3)`` of ``rays``: what a surface is
+    fitted to (``method: proposal``, the renderer ``nsim render`` uses)."""
+    from nsim.rendering.renderer import MarchConfig, render_rays
+
+    with torch.no_grad():
+        out = render_rays(model, rays, "proposal", grid, MarchConfig(), chunk)
+    return out.depth_median, out.accumulation, out.rgb.clamp(0.0, 1.0)
+
+
+def bake_surface(model, baked: BakedScene, cfg: BakeConfig, frames, targets, seed: int = 0,
+                 images: list | None = None) -> BakedScene:
+    """``baked`` with its surface (``nsim.rendering.surface``): marching cubes of its density, fitted to the NeRF's
+    median depths on the training rays of ``frames`` (every ``surface_stride``-th pixel), textured with the
+    training ``images``' colours there (one ``(H, W, 3)`` uint8 image a frame; None: the NeRF's colours).
+    targets: ``rays -> (depth_median, accumulation, rgb)`` (:func:`nerf_targets`, or a caller's that keeps parts
+    for resuming). Deterministic for one device and ``seed``."""
+    from nsim.rendering.surface import MeshCaster, fit_mesh, fit_texture, mesh_of_bricks
+
+    t0 = time.perf_counter()
+    if images is not None:
+        rays, pixels = training_rays(model, frames or [], cfg.surface_stride, images)
+        depth, acc, _ = targets(rays)
+        rgb = pixels
+    else:
+        rays = training_rays(model, frames or [], cfg.surface_stride)
+        depth, acc, rgb = targets(rays)
+    keep = torch.nonzero(acc > 0.5, as_tuple=True)[0]
+    if not len(keep):
+        raise InputError(f"bake: none of the {len(rays)} training rays ends on a surface in the NeRF (accumulation "
+                         "0.5); set surface=false")
+    near = rays.near[keep].cpu().numpy()
+    d = rays.dirs[keep].cpu().numpy()
+    o = rays.origins[keep].cpu().numpy() + d * near[:, None]
+    t_max = np.maximum(rays.far[keep].cpu().numpy() - near, 0.0)
+    target = depth[keep].cpu().numpy() - near
+    t_nerf = time.perf_counter()
+    level = cfg.surface_level
+    if level is None:  # the field's density where the NeRF puts the surface (a seeded draw of those points)
+        pick = torch.randperm(len(keep), generator=torch.Generator().manual_seed(seed))[:1 << 16].numpy()
+        x = torch.as_tensor(o[pick] + d[pick] * target[pick, None], device=baked.device)
+        with torch.no_grad():
+            level = float(model.field.density(x)[0].float().median())
+    v, f = mesh_of_bricks(baked.brick_index.cpu().numpy(), baked.density.cpu().numpy(), baked.bricks_per_side,
+                          baked.aabb[0].cpu().numpy(), baked.voxel_m.cpu().numpy(), level, cfg.surface_min_area_m2)
+    if not len(f):
+        high = float(baked.density.max()) if baked.density.numel() else 0.0
+        raise InputError(f"bake: no surface at density {level:.4g}/m (the baked density reaches {high:.3g}/m); "
+                         "set surface_level below that")
+    t_mesh = time.perf_counter()
+    v, fit = fit_mesh(v, f, o, d, t_max, target, cfg.surface_fit_passes, cfg.surface_fit_ridge,
+                      cfg.surface_fit_gate_m, cfg.surface_fit_step_m)
+    t_fit = time.perf_counter()
+    hit = MeshCaster(v, f).cast(o, d, t_max)
+    on = np.nonzero(hit["face"] >= 0)[0]
+    device = baked.device
+    points = torch.as_tensor(o[on] + d[on] * hit["t"][on, None]).to(device)
+    colours = rgb[keep][torch.as_tensor(on, device=rgb.device)].to(device)
+    gen = torch.Generator().manual_seed(seed)
+    texture = SurfaceTexture(baked.aabb.cpu(), cfg.texture_levels, cfg.texture_log2_size, cfg.texture_max_resolution,
+                             cfg.texture_width, generator=gen).to(device)
+    every = max(1, cfg.texture_steps // 10)
+    psnr_fit = fit_texture(texture, points, colours, cfg.texture_steps, cfg.texture_batch, cfg.texture_lr, gen,
+                           on_step=lambda s: s % every == every - 1 and log.info(
+                               "bake: surface texture step %d/%d", s + 1, cfg.texture_steps))
+    t_tex = time.perf_counter()
+    rel = np.abs(hit["t"][on] - target[on]) / np.maximum(target[on], 1e-6)
+    stats = {"level_per_m": round(level, 6), "texture_from": "nerf" if images is None else "images", "training_rays": len(rays), "rays_fitted": int(len(keep)),
+             "rays_on_surface": int(len(on)), "fit": fit["passes"],
+             "depth_rel_error_median": float(np.median(rel)) if len(rel) else None,
+             "texture_psnr_fit": round(psnr_fit, 3)}
+    log.info("bake: surface of %d faces; training depth error median %.3f %%; texture %.2f dB on its points; "
+             "seconds: NeRF %.1f, mesh %.1f, fit %.1f, texture %.1f", len(f),
+             100 * (stats["depth_rel_error_median"] or 0.0), psnr_fit, t_nerf - t0, t_mesh - t_nerf, t_fit - t_mesh,
+             t_tex - t_fit)
+    return dataclasses.replace(baked, surface=BakedSurface(v, f, texture, stats))
+
+
 @torch.no_grad()
 def bake(model, grid, cfg: BakeConfig = BakeConfig(), frames=None) -> BakedScene:
     """Bake a ``SceneModel`` over its ``OccupancyGrid`` (same device) into a :class:`BakedScene`; ``frames``: the
-    training cameras, ``(camera, cam_to_world)`` pairs, for ``cfg.cull_weight`` (:func:`bake_passes`)."""
+    training cameras, ``(camera, cam_to_world)`` pairs, for ``cfg.cull_weight`` (:func:`bake_passes`) and
+    ``cfg.surface`` (:func:`bake_surface`)."""
     model.eval()
 
     def evaluate(plan: BakePlan, c: BakeConfig, _name: str) -> tuple[Tensor, Tensor]:
@@ -619,7 +772,10 @@ def bake(model, grid, cfg: BakeConfig = BakeConfig(), frames=None) -> BakedScene
         density = torch.cat(sig) if sig else torch.zeros(0, device=device)
         return density, torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=device)
 
-    return bake_passes(model, grid, cfg, frames, evaluate)
+    baked = bake_passes(model, grid, cfg, frames, evaluate)
+    if cfg.surface:
+        baked = bake_surface(model, baked, cfg, frames, lambda r: nerf_targets(model, grid, r))
+    return baked
 
 
 # ---------------------------------------------------------------------------------- rendering
@@ -819,6 +975,12 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
     outside its image, whose outputs are dropped, need no NeRF)."""
     n = len(rays)
     device = rays.origins.device
+    may = fallback is not None and colour and not return_samples
+    if baked.surface is not None:  # the fitted mesh and its texture; rays that miss it may go to the NeRF
+        out = render_surface(baked.surface, rays, baked.background_rgb, colour, return_samples)
+        if may and baked.nerf_fallback_accumulation is not None:
+            out = _fall_back(out, rays, out.accumulation < baked.nerf_fallback_accumulation, fallback, may_fall_back)
+        return out
     ray, t0, t1, sigma, brick, local = _march(baked, rays)
     counts = torch.bincount(ray, minlength=n)
     starts = torch.cumsum(counts, 0) - counts
@@ -872,19 +1034,25 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
         sure = acc > 0.5
         out.depth[live] = torch.where(sure, depth, out.depth[live])
         out.depth_median[live] = torch.where(sure, median, out.depth_median[live])
-    if fallback is not None and colour and not return_samples and baked.falls_back:
-        flagged = fallback_rays(baked, weights, 0.5 * (t0_p + t1_p))
-        if may_fall_back is not None:
-            flagged &= may_fall_back
-        split = torch.nonzero(flagged, as_tuple=True)[0]
-        if split.numel():
-            from nsim.rendering.renderer import PER_RAY_FIELDS
+    if may and baked.falls_back:
+        out = _fall_back(out, rays, fallback_rays(baked, weights, 0.5 * (t0_p + t1_p)), fallback, may_fall_back)
+    return out
 
-            nerf = fallback(rays[split])
-            for f in PER_RAY_FIELDS:  # (copies: the background may be one colour expanded over the rays)
-                mixed = getattr(out, f).clone()
-                mixed[split] = getattr(nerf, f).to(mixed.dtype)
-                setattr(out, f, mixed)
+
+def _fall_back(out: RenderOutput, rays: Rays, flagged: Tensor, fallback, may_fall_back: Tensor | None) -> RenderOutput:
+    """``out`` with the per-ray outputs of the ``flagged (R,)`` rays (those ``may_fall_back`` allows) replaced by
+    ``fallback``'s (the NeRF's renderer, ``rays -> RenderOutput``)."""
+    if may_fall_back is not None:
+        flagged = flagged & may_fall_back
+    split = torch.nonzero(flagged, as_tuple=True)[0]
+    if split.numel():
+        from nsim.rendering.renderer import PER_RAY_FIELDS
+
+        nerf = fallback(rays[split])
+        for f in PER_RAY_FIELDS:  # (copies: the background may be one colour expanded over the rays)
+            mixed = getattr(out, f).clone()
+            mixed[split] = getattr(nerf, f).to(mixed.dtype)
+            setattr(out, f, mixed)
     return out
 
 
@@ -932,5 +1100,5 @@ def render_baked(baked: BakedScene, rays: Rays, chunk: int = 65536, return_sampl
 
 
 __all__ = ["BakeConfig", "BakePlan", "BakedScene", "ColorDecoder", "assemble", "bake", "bake_passes",
-           "brick_visibility", "cull", "decoder_of", "density_at", "evaluate_lattice", "features_at", "finish_bake",
-           "fallback_rays", "locate", "plan_bake", "render_baked", "render_chunk", "training_rays"]
+           "bake_surface", "brick_visibility", "cull", "decoder_of", "density_at", "evaluate_lattice", "features_at", "finish_bake",
+           "fallback_rays", "locate", "nerf_targets", "plan_bake", "render_baked", "render_chunk", "training_rays"]

@@ -45,6 +45,7 @@ from nsim.rendering.baked import BakeConfig
 STAGE = "bake"
 VERSION = 1
 PART_POINTS = 1 << 20  # lattice points per resume part
+PART_RAYS = 1 << 18  # surface: training rays the NeRF renders per resume part
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +80,7 @@ def resolve_scene(spec: str, ctx: RunContext) -> str:
     return art_id
 
 
-def training_frames(scene_id: str, ctx: RunContext) -> list:
+def training_frames(scene_id: str, ctx: RunContext, setting: str = "cull_weight") -> list:
     """The cameras the scene was trained on, ``(camera, cam_to_world)`` pairs at the size it trained at: the
     poses artifact its manifest names, the images ``scene.json`` lists as ``train_images``."""
     import json
@@ -92,8 +93,8 @@ def training_frames(scene_id: str, ctx: RunContext) -> list:
     doc = doc.get("extra", doc)
     poses = art.manifest.get("inputs", {}).get("poses")
     if poses is None or "train_images" not in doc:
-        raise InputError(f"bake {scene_id[:12]}: cull_weight needs the training cameras; the scene names no poses "
-                         "artifact or train_images (set cull_weight=null)")
+        raise InputError(f"bake {scene_id[:12]}: {setting} needs the training cameras; the scene names no poses "
+                         f"artifact or train_images (set {setting}={'false' if setting == 'surface' else 'null'})")
     frames = read_transforms(store.get(poses).file("transforms.json")).frames
     size = doc.get("image_size_trained")
     out = []
@@ -102,6 +103,28 @@ def training_frames(scene_id: str, ctx: RunContext) -> list:
         if size and int(size[0]) != cam.width:
             cam = cam.scaled(int(size[0]) / cam.width)
         out.append((cam, np.asarray(frames[int(i)].cam_to_world, dtype=np.float32)))
+    return out
+
+
+def training_images(scene_id: str, ctx: RunContext, frames: list) -> list[np.ndarray]:
+    """The images the scene was trained on (``train_images`` of the poses artifact its manifest names), each
+    ``(H, W, 3)`` uint8 at its training camera's size (``frames``: :func:`training_frames`), shrunk as the trainer
+    shrinks them (pixel-area averaging)."""
+    import json
+
+    from nsim.io.images import read_image
+    from nsim.io.transforms_json import read_transforms
+    from nsim.train.scene_data import resize_image
+
+    store = ctx.store
+    art = store.get(scene_id)
+    doc = json.loads(art.file("scene.json").read_text())
+    doc = doc.get("extra", doc)
+    root = store.get(art.manifest["inputs"]["poses"]).path
+    records = read_transforms(root / "transforms.json").frames
+    out = []
+    for i, (cam, _) in zip(doc["train_images"], frames, strict=True):
+        out.append(resize_image(read_image(root / records[int(i)].file_path), cam.width, cam.height))
     return out
 
 
@@ -119,7 +142,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     import torch
 
     from nsim.rendering import OccupancyGrid, load_model
-    from nsim.rendering.baked import bake_passes, evaluate_lattice
+    from nsim.rendering.baked import bake_passes, bake_surface, evaluate_lattice, nerf_targets
 
     store = ctx.store
     inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
@@ -159,8 +182,32 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         density = torch.cat(sig) if sig else torch.zeros(0, device=ctx.device)
         return density, torch.cat(feats) if feats else torch.zeros(0, model.field_cfg.geo_feat_dim, device=ctx.device)
 
-    frames = training_frames(inputs.scene, ctx) if cfg.cull_weight is not None else None
+    def targets(rays):  # the NeRF's depth and colour of the surface's training rays, in resumable parts
+        parts = []
+        for a in range(0, len(rays), PART_RAYS):
+            path = work / f"surface_{a:012d}.npy"
+            if path.is_file():
+                part = torch.as_tensor(np.load(path, allow_pickle=False)).to(ctx.device)
+                nonlocal reused
+                reused += 1
+            else:
+                depth, acc, rgb = nerf_targets(model, grid, rays[a : a + PART_RAYS])
+                part = torch.cat([depth[:, None], acc[:, None], rgb], 1)
+                tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+                with open(tmp, "wb") as fh:
+                    np.save(fh, part.cpu().numpy(), allow_pickle=False)
+                os.replace(tmp, path)
+            parts.append(part)
+            log.info("bake: the NeRF's surface on %d of %d training rays", min(len(rays), a + PART_RAYS), len(rays))
+        t = torch.cat(parts) if parts else torch.zeros(0, 5, device=ctx.device)
+        return t[:, 0], t[:, 1], t[:, 2:]
+
+    frames = training_frames(inputs.scene, ctx, "surface" if cfg.surface else "cull_weight") \
+        if cfg.cull_weight is not None or cfg.surface else None
     baked = bake_passes(model, grid, cfg, frames, evaluate)
+    if cfg.surface:
+        images = training_images(inputs.scene, ctx, frames) if cfg.texture_from == "images" else None
+        baked = bake_surface(model, baked, cfg, frames, targets, seed=ctx.seed, images=images)
     bake_s = time.perf_counter() - t0
     with store.publish(kind="baked-scene", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
                        seed=ctx.seed) as out:
@@ -169,6 +216,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         out.summary.update({"bricks": doc["bricks"], "bricks_per_side": doc["bricks_per_side"],
                             "voxel_m": doc["voxel_m"], "occupied_cells": doc["occupied_cells"],
                             "pruned_bricks": doc["pruned_bricks"], "culled_bricks": doc.get("culled_bricks", 0),
+                            **({"surface_faces": doc["surface"]["faces"]} if "surface" in doc else {}),
                             "size_mb": round(size / 1e6, 3)})
         out.timing["bake_s"] = round(bake_s, 2)
         if reused:
