@@ -642,10 +642,18 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
     forced = dataclasses.replace(ctx, force=True)
     res: dict = {}
     # 1. the bake
-    bcfg = load_config(bake.Config, stage="bake", preset=args.bake_preset)
-    t0 = time.perf_counter()
-    baked_id = bake.run(bake.Inputs(scene=scene_id), bcfg, forced).baked
-    res["bake"] = {"bake_s": time.perf_counter() - t0, "bake_mb": _file_mb(store.get(baked_id).path),
+    if args.baked_id:  # a bake made before (of this scene): its own recorded time
+        baked_id = store.resolve(args.baked_id, kind="baked-scene")
+        man = store.get(baked_id).manifest
+        if man["inputs"]["scene"] != scene_id:
+            sys.exit(f"--baked-id {args.baked_id}: a bake of scene {man['inputs']['scene'][:12]}, not {scene_id[:12]}")
+        bcfg, bake_s = from_dict(bake.Config, man["config"]), float(man["timing"]["bake_s"])
+    else:
+        bcfg = load_config(bake.Config, stage="bake", preset=args.bake_preset)
+        t0 = time.perf_counter()
+        baked_id = bake.run(bake.Inputs(scene=scene_id), bcfg, forced).baked
+        bake_s = time.perf_counter() - t0
+    res["bake"] = {"bake_s": bake_s, "bake_mb": _file_mb(store.get(baked_id).path), "baked_id": baked_id,
                    "config": to_dict(bcfg), **store.get(baked_id).manifest["summary"]}
     print(f"bake: {res['bake']['bake_s']:.1f} s, {res['bake']['bake_mb']:.1f} MB, {res['bake']['bricks']} bricks",
           flush=True)
@@ -780,6 +788,8 @@ def main() -> None:
     ap.add_argument("--capture", default=None, help="the capture the --scene was trained on (default: made here "
                                                     "with the capture preset; a scene of another capture scores wrong)")
     ap.add_argument("--bake-preset", default="default", help="--baked: the bake preset (configs/bake/NAME.yaml)")
+    ap.add_argument("--baked-id", default=None, help="--baked: measure this baked-scene (id or ref) of the scene "
+                                                     "instead of baking one (bake_s: the time it recorded)")
     ap.add_argument("--heldout-views", type=int, default=None, help="--baked: held-out views (default all, 3 quick)")
     ap.add_argument("--nerf-rays", type=int, default=None, help="--baked: rays the NeRF's speed is timed on "
                                                                 "(default 30000, 4000 quick)")

@@ -20,5 +20,6 @@ def command(click_ctx, preset, config_file, overrides, force, tag, scene):
     ctx = run_context(click_ctx, force)
     out = bake.run(bake.Inputs(scene=scene), cfg, ctx)
     if out.parts_reused:
-        click.echo(f"resumed: {out.parts_reused} part(s) of the lattice were already evaluated", err=True)
+        click.echo(f"resumed: {out.parts_reused} part(s) of the lattice (and of the NeRF's depths on the "
+                   "training rays) were already evaluated", err=True)
     report_artifact(ctx, out.baked, out.cache_hit, tag)

@@ -277,3 +277,59 @@ def test_broken_surface_files_are_one_line(scene, tmp_path):
     (tmp_path / "texture_table.npy").unlink()
     with pytest.raises(InputError, match="texture_table.npy"):
         BakedScene.load(tmp_path)
+
+
+def test_people_composite_over_the_surface_in_depth_order():
+    """The people's merge (``HumanSet.composite``) over a surface: a person before the wall shows, a wall before
+    the person hides it; the same result as ``compositing.composite_sets`` of the surface's one opaque sample and
+    the person's samples."""
+    from types import SimpleNamespace
+
+    from nsim.human.gait import walk_cycle
+    from nsim.human.motion import LocomotionLoop
+    from nsim.human.nerf import HumanModel, HumanModelConfig
+    from nsim.human.skeleton import forward_kinematics, nsim_skeleton
+    from nsim.rendering.compositing import composite_sets
+    from nsim.rendering.model import RaySamples
+    from nsim.rendering.people import HumanSet
+
+    cfg_h = HumanModelConfig(hash_levels=4, hash_log2_table_size=10, hash_max_resolution=64, hidden_dim=16,
+                             color_hidden_dim=16, samples_per_ray=16)
+    skeleton = nsim_skeleton(0.9)
+    person = HumanModel(cfg_h, skeleton, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        person.field.density_mlp.layers[-1].bias.fill_(6.0)  # opaque: the person holds its rays
+    person.eval()
+    loop = LocomotionLoop.from_clip(walk_cycle(1.3, 0.9))
+    root, quats = loop.pose_at(np.array([0.3]), np.array([[0.0, 0.0]]), np.array([0.0]))
+    T = forward_kinematics(skeleton, quats[0], root[0])
+    n = 40
+    target = torch.tensor(T[0, :3, 3], dtype=torch.float32) + torch.stack(
+        [torch.zeros(n), torch.zeros(n), torch.linspace(-0.3, 0.3, n)], -1)
+    origins = target - torch.tensor([0.0, 3.0, 0.0])  # 3 m in front of the person, looking along +y
+    rays = make_rays(origins, torch.nn.functional.normalize(target - origins, dim=-1), 0.05, 30.0)
+    y = float(target[0, 1])
+    aabb = torch.tensor([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]])
+    people = [{"k": 0, "T": T, "model": person, "mask": torch.ones(n, dtype=torch.bool)}]
+    cfg = SimpleNamespace(method="baked", march=None, chunk_rays=1024, culling=True)
+    with torch.no_grad():
+        hs = person.render_samples(rays.origins, rays.dirs, torch.as_tensor(T, dtype=torch.float32), rays.near,
+                                   rays.far, box_test=True)
+    live = (hs.t_ends > hs.t_starts).any(-1)
+    assert int(live.sum()) > n // 2
+    for wall_y, person_shows in ((y + 1.0, True), (y - 1.0, False)):  # a wall behind, then before the person
+        v = np.array([[-9, wall_y, -9], [9, wall_y, -9], [9, wall_y, 9], [-9, wall_y, 9]], np.float32)
+        s = surf.BakedSurface(v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), flat_texture(aabb, (0.2, 0.6, 0.9)))
+        scene = surf.render_surface(s, rays, torch.zeros(3), return_samples=True)
+        out, instance = HumanSet([person], {}, "cpu").composite(None, None, rays, people, cfg,
+                                                                scene_out=dataclasses.replace(scene, rgb=scene.rgb.clone()))
+        sets = [RaySamples(*(getattr(x, f)[live] for f in ("t_starts", "t_ends", "sigma", "rgb")))
+                for x in (scene.samples, hs)]
+        ref, _ = composite_sets(*sets, background_rgb=scene.background[live])
+        torch.testing.assert_close(out.rgb[live], ref.rgb)
+        wall = torch.tensor([0.2, 0.6, 0.9])
+        if person_shows:
+            assert int((instance > 0).sum()) > 0 and float((out.rgb[live] - wall).abs().sum(-1).max()) > 0.1
+        else:
+            assert int((instance > 0).sum()) == 0
+            torch.testing.assert_close(out.rgb, wall.expand(n, 3), atol=1e-4, rtol=0)
