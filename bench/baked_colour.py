@@ -11,7 +11,7 @@ cells across the box, and a 32-wide decoder: ``nsim.fields``) to the training im
 views at theirs, for two surfaces:
 
 - ``nerf``: each ray's median depth from the NeRF itself (``method: proposal``), the best geometry nsim has;
-- ``baked``: each ray's median depth from the baked density alone (``nsim bake``'s default preset with
+- ``baked``: each ray's median depth from the baked density alone (``nsim bake``'s ``volume`` preset with
   ``--bake-set`` overrides, e.g. ``voxel_m=0.02 cull_voxel_m=0.04`` for a 2 cm lattice; no field queries).
 
 Printed: each one's held-out PSNR against the images and against the NeRF's renders, beside the NeRF's own, and
@@ -102,7 +102,7 @@ def measure(ctx: RunContext, cap_id: str, scene_id: str, steps: int, stride: int
     scene, cap = store.get(scene_id), store.get(cap_id)
     model = load_model(scene.path, "cpu")
     grid = OccupancyGrid.load(scene.file("occupancy_grid.npy"))
-    bcfg = load_config(bake.Config, stage="bake", preset="default", overrides=bake_set)
+    bcfg = load_config(bake.Config, stage="bake", preset="volume", overrides=bake_set)
     baked_id = bake.run(bake.Inputs(scene=scene_id), bcfg, ctx).baked
     baked = BakedScene.load(store.get(baked_id).path)
     print(f"bake {baked_id[:12]}: {baked.n_bricks} bricks, lattice {float(baked.voxel_m.max()):.3f} m", flush=True)

@@ -649,7 +649,7 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
             sys.exit(f"--baked-id {args.baked_id}: a bake of scene {man['inputs']['scene'][:12]}, not {scene_id[:12]}")
         bcfg, bake_s = from_dict(bake.Config, man["config"]), float(man["timing"]["bake_s"])
     else:
-        bcfg = load_config(bake.Config, stage="bake", preset=args.bake_preset)
+        bcfg = load_config(bake.Config, stage="bake", preset=args.bake_preset or ("tiny" if args.quick else "default"))
         t0 = time.perf_counter()
         baked_id = bake.run(bake.Inputs(scene=scene_id), bcfg, forced).baked
         bake_s = time.perf_counter() - t0
@@ -787,7 +787,8 @@ def main() -> None:
                                                          "method: baked): speed, images, depth, LiDAR, bake cost")
     ap.add_argument("--capture", default=None, help="the capture the --scene was trained on (default: made here "
                                                     "with the capture preset; a scene of another capture scores wrong)")
-    ap.add_argument("--bake-preset", default="default", help="--baked: the bake preset (configs/bake/NAME.yaml)")
+    ap.add_argument("--bake-preset", default=None, help="--baked: the bake preset (configs/bake/NAME.yaml; default: "
+                                                        "default, tiny with --quick)")
     ap.add_argument("--baked-id", default=None, help="--baked: measure this baked-scene (id or ref) of the scene "
                                                      "instead of baking one (bake_s: the time it recorded)")
     ap.add_argument("--heldout-views", type=int, default=None, help="--baked: held-out views (default all, 3 quick)")

@@ -137,11 +137,12 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     held = step("render (held-out frames)", lambda: render.run(render.Inputs(poses=poses_id, scene=scene_id), held_cfg, ctx))
     ctx.store.set_ref("render/demo-heldout", held.render)
 
-    # The scene baked into a sparse voxel grid (nsim bake) and the same held-out frames rendered from it
-    # (--set method=baked). Experimental: coarse voxels here, and the NeRF stays the default renderer
-    # until the baked one meets issue 25's bars (README, "Sensors").
+    # The scene baked (nsim bake): its density on a 10 cm lattice meshed, the mesh fitted to the NeRF's median
+    # depths and textured from the training images (configs/bake/tiny.yaml: the default preset's surface, small),
+    # and the same held-out frames rendered from it (--set method=baked).
     bake_cfg = load_config(bake.Config, stage="bake", preset="tiny")
-    baked = step("bake (experimental, 10 cm voxels)", lambda: bake.run(bake.Inputs(scene=scene_id), bake_cfg, ctx)).baked
+    baked = step("bake (a surface fitted to the NeRF, 10 cm lattice)",
+                 lambda: bake.run(bake.Inputs(scene=scene_id), bake_cfg, ctx)).baked
     ctx.store.set_ref("baked/demo", baked)
     hb_cfg = load_config(render.Config, stage="render", preset=ren_preset,
                          overrides=["frames=heldout", "tick_stride=1", "image_scale=1.0", "max_frames=4", "method=baked"])
@@ -149,8 +150,8 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
                       lambda: render.run(render.Inputs(poses=poses_id, scene=scene_id, baked=baked), hb_cfg, ctx))
     ctx.store.set_ref("render/demo-heldout-baked", held_baked.render)
     print(f"[demo]   {ctx.store.get(held_baked.render).path / 'preview' / 'contact_sheet.png'}", flush=True)
-    # Spot's run again, the same people, from the baked scene (the rays it cannot stand for, depth edges and
-    # culled space, from the NeRF; configs/bake/default.yaml): the render step's time beside the NeRF's above.
+    # Spot's run again, the same people, from the baked scene (camera rays that miss its surface from the NeRF):
+    # the render step's time beside the NeRF's above.
     sb_cfg = load_config(render.Config, stage="render", preset=ren_preset, overrides=["method=baked"])
     spot_baked = step("render (spot rig, baked scene)",
                       lambda: render.run(dataclasses.replace(ren_inputs, baked=baked), sb_cfg, ctx)).render

@@ -12,8 +12,9 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.argument("scene")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, scene):
-    """Bake SCENE (a scene-checkpoint id, prefix or ref) into a sparse voxel grid for fast sensors
-    (nsim render --set method=baked --baked ID): a baked-scene artifact."""
+    """Bake SCENE (a scene-checkpoint id, prefix or ref) for fast sensors (nsim render --set method=baked --baked
+    ID): a sparse voxel grid and, with the default preset, a mesh fitted to the NeRF and textured from the training
+    images (one ray cast and one texture lookup a ray): a baked-scene artifact."""
     from nsim.stages import bake
 
     cfg = resolve_config(bake.Config, "bake", preset, config_file, overrides)

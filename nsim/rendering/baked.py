@@ -53,6 +53,12 @@ Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     colour (``colour=False``: a LiDAR) decode none: their depth is the window's (the field's density alone)
     with ``field_samples``, else the baked density's.
 
+Surface (``surface``; ``bake_surface``, ``nsim.rendering.surface``)
+    The bake's density meshed at ``surface_level``, the mesh fitted to the NeRF's median depths on the training
+    rays and textured from the training images. A baked scene with a surface renders every ray from it (one
+    Embree cast and one texture lookup; ``render_chunk``): the brick grid and the field window are then not used,
+    and camera rays that miss the mesh go to the NeRF (``nerf_fallback_accumulation``).
+
 Shapes: rays ``(R,)``; ``brick_index (X, Y, Z)`` int32 (``-1``: no brick); ``density (N, P)``
 float32 and ``features (N, P, G)`` with ``P = (B + 1)^3`` lattice points per brick, lattice point
 ``(a, b, c)`` of brick ``n`` at ``cell_min(n) + (a, b, c) * voxel``, flattened ``(a * (B + 1) + b) *
@@ -138,7 +144,7 @@ class BakeConfig:
     surface: bool = param(False, help="also bake a surface (nsim.rendering.surface): a mesh of the baked density "
                                       "fitted to the NeRF's median depths and a hash-grid texture; cameras, depth "
                                       "and LiDAR then render from it (one Embree cast and one lookup a ray)")
-    surface_level: float | None = param(20.0, gt=0.0, help="surface: the density (1/m) whose iso-surface is meshed "
+    surface_level: float | None = param(10.0, gt=0.0, help="surface: the density (1/m) whose iso-surface is meshed "
                                         "(null: the field's median density at the NeRF's median depth on the "
                                         "training rays)")
     surface_min_area_m2: float = param(0.0, ge=0.0, help="surface: mesh pieces smaller than this are dropped")
@@ -146,9 +152,11 @@ class BakeConfig:
                                                      "is a ray the mesh and texture are fitted to")
     surface_fit_passes: int = param(4, ge=0, le=32, help="surface: Gauss-Newton passes fitting the mesh to the "
                                                          "NeRF's median depths (0: marching cubes as it is)")
-    surface_fit_ridge: float = param(0.1, gt=0.0, help="surface: ridge weight on each vertex's step (m^2 of "
+    surface_fit_ridge: float = param(0.5, gt=0.0, help="surface: ridge weight on each vertex's step (m^2 of "
                                                        "squared depth residual per m^2 of step)")
-    surface_fit_gate_m: float = param(0.05, gt=0.0, help="surface: rays whose hit lies farther than this from the "
+    surface_fit_smooth: float = param(10.0, ge=0.0, help="surface: weight of each vertex's step against its "
+                                                        "neighbours' mean (the mesh Laplacian's; 0: none)")
+    surface_fit_gate_m: float = param(0.15, gt=0.0, help="surface: rays whose hit lies farther than this from the "
                                                          "NeRF's depth are left out of a pass (another surface)")
     surface_fit_step_m: float = param(0.03, gt=0.0, help="surface: the most a vertex moves in one pass")
     texture_from: str = param("images", choices=("images", "nerf"), help="surface texture: fitted to the training "
@@ -728,7 +736,7 @@ def bake_surface(model, baked: BakedScene, cfg: BakeConfig, frames, targets, see
                          "set surface_level below that")
     t_mesh = time.perf_counter()
     v, fit = fit_mesh(v, f, o, d, t_max, target, cfg.surface_fit_passes, cfg.surface_fit_ridge,
-                      cfg.surface_fit_gate_m, cfg.surface_fit_step_m)
+                      cfg.surface_fit_gate_m, cfg.surface_fit_step_m, cfg.surface_fit_smooth)
     t_fit = time.perf_counter()
     hit = MeshCaster(v, f).cast(o, d, t_max)
     on = np.nonzero(hit["face"] >= 0)[0]

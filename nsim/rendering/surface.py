@@ -20,8 +20,8 @@ Baking (``bake_surface``: arrays in, arrays out)
        farther along (first order). ``surface_fit_passes`` Gauss-Newton passes; each casts the rays, keeps
        those whose hit lies within ``surface_fit_gate_m`` of the target (the same surface) and that do not
        graze their face (``|d . n_f| > 0.2``), solves the ridge-regularised normal equations
-       ``(A^T A + surface_fit_ridge I) delta = A^T r`` by conjugate gradients and clips each step to
-       ``surface_fit_step_m``.
+       ``(A^T A + surface_fit_ridge I + surface_fit_smooth L^T L) delta = A^T r`` (``L``: the mesh's uniform
+       graph Laplacian, ``I - D^-1 W``) by conjugate gradients and clips each step to ``surface_fit_step_m``.
     3. Texture (``fit_texture``): ``rgb = sigmoid(MLP(hash(u)))`` with instant-NGP's multiresolution hash
        grid (``nsim.fields.hash_encoding``; ``texture_levels`` levels of ``2^texture_log2_size`` rows, finest
        ``texture_max_resolution`` cells across the scene box) and a ``texture_width``-wide decoder, fitted by
@@ -243,7 +243,7 @@ def mesh_of_bricks(brick_index: np.ndarray, density: np.ndarray, bricks_per_side
 
 
 def fit_mesh(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, dirs: np.ndarray, t_max: np.ndarray,
-             target: np.ndarray, passes: int, ridge: float, gate_m: float, step_m: float,
+             target: np.ndarray, passes: int, ridge: float, gate_m: float, step_m: float, smooth: float = 0.0,
              on_pass=None) -> tuple[np.ndarray, dict]:
     """Move each vertex along its normal so that the mesh's hit ranges of rays ``origins, dirs (R, 3)`` (cast up to
     ``t_max (R,)``) match ``target (R,)`` (module docstring, step 2). Returns the vertices ``(V, 3)`` float32 and
@@ -255,6 +255,15 @@ def fit_mesh(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, dirs:
 
     v = vertices.astype(np.float64)
     passes_out = []
+    lap = None
+    if smooth > 0:  # the uniform graph Laplacian over the mesh's edges: a vertex's step against its neighbours' mean
+        e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        e = np.unique(np.sort(e, axis=1), axis=0)
+        w = sp.csr_matrix((np.ones(2 * len(e)), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))),
+                          shape=(len(v), len(v)))
+        deg = np.asarray(w.sum(1)).ravel()
+        lap = sp.identity(len(v), format="csr") - sp.diags(1.0 / np.maximum(deg, 1.0)) @ w
+        lap = smooth * (lap.T @ lap)
     for k in range(passes):
         normals = meshing.vertex_normals(v, faces)
         hit = MeshCaster(v, faces).cast(origins, dirs, t_max)
@@ -272,6 +281,8 @@ def fit_mesh(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, dirs:
         n = len(use)
         a = sp.csr_matrix((coef.ravel(), (np.repeat(np.arange(n), 3), tri.ravel())), shape=(n, len(v)))
         m = (a.T @ a) + ridge * sp.identity(len(v), format="csr")
+        if lap is not None:
+            m = m + lap
         delta, _ = spl.cg(m, a.T @ res, maxiter=300, rtol=1e-6)
         delta = np.clip(delta, -step_m, step_m)
         v = v + delta[:, None] * normals

@@ -7,7 +7,10 @@ stores the field's density and geometry features there, drops the bricks that ho
 through the baked grid itself) and keeps the colour head with the mean appearance embedding; ``nsim render --set
 method=baked`` marches it (``--baked ID``, or baked on demand), the scene field volume-rendered only in a window
 around each camera ray's baked surface (``field_samples``; a LiDAR's rays take the window's depth from the
-field's density, with no colour).
+field's density, with no colour). With ``surface`` (the default preset) the bake also holds a surface
+(``nsim.rendering.surface``): the density meshed, the mesh fitted to the NeRF's median depths on the training
+rays and textured from the training images (read from the poses artifact the scene names); cameras, depth and
+LiDAR then render from the mesh, camera rays that miss it from the NeRF.
 
 Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
 
@@ -17,11 +20,14 @@ Artifact layout (``nsim.rendering.baked.BakedScene.save``)::
     features.npy               (N, (B + 1)^3, G) float16: the field's geometry features there (G = 0 with
                                feature_dtype none: the scene field colours the rays, field_samples)
     color_layer<k>_{weight,bias}.npy   the colour head (appearance folded into the first bias)
+    surface_vertices.npy       (V, 3) float32, surface_faces.npy (F, 3) int32: the fitted mesh (surface only)
+    texture_table.npy, texture_layer<k>_{weight,bias}.npy   its hash-grid texture (surface only)
 
 Resume: the lattice (both lattices with ``cull_voxel_m``: the culled first bake's, then the fine one's
 over the kept cells) is evaluated in parts of ``PART_POINTS`` points, each written to
 ``<workspace>/tmp/bake.<key>.resume/`` as it is done; a killed bake started again with the same
 inputs, config and device evaluates only the missing parts and publishes the same artifact. The
+surface's NeRF depths and colours on the training rays are kept the same way, ``PART_RAYS`` rays a part. The
 folder goes once the artifact is published. The device is part of the action key.
 """
 

@@ -28,6 +28,7 @@ SPOT = configs_dir() / "robots" / "spot.yaml"
 # heaviest samples' colour from the field: 23.6, 21.8, 22.1 dB and 0.0075).
 PSNR_BAR_DB = 27.0
 DEPTH_BAR = 0.006
+VOLUME = ["--preset", "tiny", "--set", "surface=false"]  # the voxel grid alone (the field window), as before the surface
 SURFACE_PSNR_LOSS_DB = 1.0  # measured 2026-11-27: see test_surface_renders_the_held_out_views
 
 
@@ -45,7 +46,7 @@ def world(tmp_path_factory):
     cfg.write_text(yaml.safe_dump(TRAIN))
     assert main(["--workspace", str(ws), "--device", "cpu", "train-scene", "--poses", "poses/t", "--preset", "tiny",
                  "--config", str(cfg), "--tag", "scene/t"]) == 0
-    assert main(["--workspace", str(ws), "--device", "cpu", "bake", "scene/t", "--preset", "tiny", "--tag", "baked/t"]) == 0
+    assert main(["--workspace", str(ws), "--device", "cpu", "bake", "scene/t", *VOLUME, "--tag", "baked/t"]) == 0
     return store
 
 
@@ -103,10 +104,10 @@ def test_baked_renders_what_the_nerf_renders(world):
 def test_rerun_is_cached_and_forced_rerun_gives_the_same_id(world, capsys):
     ws = ["--workspace", str(world.root), "--device", "cpu"]
     capsys.readouterr()
-    assert main([*ws, "bake", "scene/t", "--preset", "tiny"]) == 0
+    assert main([*ws, "bake", "scene/t", *VOLUME]) == 0
     out = capsys.readouterr()
     assert "cached" in out.err and out.out.strip() == world.resolve("baked/t")
-    assert main([*ws, "bake", "scene/t", "--preset", "tiny", "--force"]) == 0
+    assert main([*ws, "bake", "scene/t", *VOLUME, "--force"]) == 0
     assert capsys.readouterr().out.strip() == world.resolve("baked/t")
 
 
@@ -119,7 +120,7 @@ def test_resume_after_a_crash_gives_the_same_artifact(world, monkeypatch):
     from nsim.rendering import baked as core
     from nsim.stages import bake
 
-    cfg = dataclasses.replace(load_config(bake.Config, stage="bake", preset="tiny"), chunk_points=512)
+    cfg = dataclasses.replace(load_config(bake.Config, stage="bake", preset="tiny"), chunk_points=512, surface=False)
     ctx = RunContext(store=world, device_spec="cpu", seed=0, progress=False, force=True)
     monkeypatch.setattr(bake, "PART_POINTS", 1024)
     clean = bake.run(bake.Inputs(scene="scene/t"), cfg, ctx)
@@ -147,7 +148,7 @@ def test_on_demand_bake_is_the_default_bake(world, monkeypatch):
     from nsim.io.images import read_image
     from nsim.rendering import baked as core
 
-    tiny = load_config(core.BakeConfig, stage="bake", preset="tiny")
+    tiny = load_config(core.BakeConfig, stage="bake", preset="tiny", overrides=["surface=false"])
     monkeypatch.setattr(core, "BakeConfig", lambda: tiny)
     given = render_poses(world, "baked", "render/baked-given", "--baked", "baked/t", "--set", "max_frames=2")
     here = render_poses(world, "baked", "render/baked-here", "--set", "max_frames=2")
@@ -164,7 +165,7 @@ def test_visibility_culling_from_the_training_cameras(world, capsys):
     from nsim.io.images import read_image
 
     ws = ["--workspace", str(world.root), "--device", "cpu"]
-    bake = [*ws, "bake", "scene/t", "--preset", "tiny", "--set", "cull_weight=0.005", "--set", "cull_stride=2"]
+    bake = [*ws, "bake", "scene/t", *VOLUME, "--set", "cull_weight=0.005", "--set", "cull_stride=2"]
     assert main([*bake, "--tag", "baked/culled"]) == 0
     full, culled = (world.get(world.resolve(t)) for t in ("baked/t", "baked/culled"))
     s = culled.manifest["summary"]
@@ -251,13 +252,9 @@ def test_bad_inputs_exit_2_with_one_line(world, capsys):
         assert needle in err and err.count("\n") == 1, (args, err)
 
 
-SURFACE = ["--set", "surface=true", "--set", "surface_level=null", "--set", "texture_log2_size=14",
-           "--set", "texture_steps=300", "--set", "texture_batch=4096"]
-
-
 @pytest.fixture(scope="module")
 def surface_bake(world):
-    assert main(["--workspace", str(world.root), "--device", "cpu", "bake", "scene/t", "--preset", "tiny", *SURFACE,
+    assert main(["--workspace", str(world.root), "--device", "cpu", "bake", "scene/t", "--preset", "tiny",
                  "--tag", "baked/surface"]) == 0
     return world.get(world.resolve("baked/surface"))
 
@@ -303,8 +300,7 @@ def test_surface_bake_resumes_and_reruns_to_the_same_artifact(world, surface_bak
     from nsim.rendering import surface as core
     from nsim.stages import bake
 
-    cfg = load_config(bake.Config, stage="bake", preset="tiny", overrides=[a.removeprefix("--set ").strip()
-                                                                           for a in " ".join(SURFACE).split(" --set ")])
+    cfg = load_config(bake.Config, stage="bake", preset="tiny")
     assert cfg.surface and cfg.texture_steps == 300
     ctx = RunContext(store=world, device_spec="cpu", seed=0, progress=False, force=True)
     monkeypatch.setattr(bake, "PART_RAYS", 2048)
