@@ -265,24 +265,12 @@ def test_people_composite_over_the_baked_scene(baked):
     ``compositing.composite_sets`` of the baked samples and the person's."""
     from types import SimpleNamespace
 
-    from nsim.human.gait import walk_cycle
-    from nsim.human.motion import LocomotionLoop
-    from nsim.human.nerf import HumanModel, HumanModelConfig
-    from nsim.human.skeleton import forward_kinematics, nsim_skeleton
     from nsim.rendering.compositing import composite_sets
     from nsim.rendering.model import RaySamples
     from nsim.rendering.people import HumanSet
+    from tests.rendering.people_fixture import opaque_person
 
-    cfg_h = HumanModelConfig(hash_levels=4, hash_log2_table_size=10, hash_max_resolution=64, hidden_dim=16,
-                             color_hidden_dim=16, samples_per_ray=16)
-    skeleton = nsim_skeleton(0.9)
-    person = HumanModel(cfg_h, skeleton, torch.Generator().manual_seed(0))
-    with torch.no_grad():
-        person.field.density_mlp.layers[-1].bias.fill_(6.0)  # opaque: the person holds its rays
-    person.eval()
-    loop = LocomotionLoop.from_clip(walk_cycle(1.3, 0.9))
-    root, quats = loop.pose_at(np.array([0.3]), np.array([[1.0, 0.8]]), np.array([0.0]))
-    T = forward_kinematics(skeleton, quats[0], root[0])
+    person, T = opaque_person((1.0, 0.8))
     n = 40
     target = torch.tensor(T[0, :3, 3], dtype=torch.float32) + torch.stack(
         [torch.zeros(n), torch.zeros(n), torch.linspace(-0.3, 0.3, n)], -1)

@@ -13,13 +13,13 @@ import pytest
 import torch
 
 from nsim.errors import InputError
-from nsim.fields.scene_field import SceneFieldConfig
 from nsim.geometry.cameras import Camera
 from nsim.rendering import surface as surf
 from nsim.rendering.baked import BakeConfig, BakedScene, bake, render_baked, training_rays
-from nsim.rendering.model import SamplerConfig, SceneModel
+from nsim.rendering.model import SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
 from nsim.rendering.rays import make_rays
+from tests.rendering.test_baked import AABB, FIELD, SAMPLER  # the baked-scene tests' micro field
 
 
 @pytest.fixture(autouse=True)
@@ -153,12 +153,6 @@ def test_render_surface_exact_range_colour_misses_and_one_opaque_sample():
     assert torch.equal(lidar.depth, out.depth) and torch.equal(lidar.rgb, bg.expand(4, 3))
 
 
-AABB = torch.tensor([[0.0, 0.0, 0.0], [2.0, 1.6, 1.2]])
-FIELD = SceneFieldConfig(hash_levels=4, hash_log2_table_size=10, hash_base_resolution=4, hash_max_resolution=64,
-                         hidden_dim=16, geo_feat_dim=7, color_hidden_dim=16, color_hidden_layers=1, sh_degree=2,
-                         appearance_dim=4, backend="torch", density_bias=1.0, contract=False)
-SAMPLER = SamplerConfig(proposal_samples=(16, 8), proposal_hash_max_resolutions=(32, 64), final_samples=8,
-                        proposal_hash_log2_table_size=10, proposal_hash_levels=3, proposal_hidden_dim=8)
 SURFACE = BakeConfig(voxel_m=0.05, prune_density=0.0, feature_dtype="none", field_samples=0, surface=True,
                      surface_level=None, texture_levels=4, texture_log2_size=10, texture_max_resolution=64,
                      texture_width=8, texture_steps=30, texture_batch=512, surface_fit_passes=2)
@@ -285,24 +279,12 @@ def test_people_composite_over_the_surface_in_depth_order():
     the person's samples."""
     from types import SimpleNamespace
 
-    from nsim.human.gait import walk_cycle
-    from nsim.human.motion import LocomotionLoop
-    from nsim.human.nerf import HumanModel, HumanModelConfig
-    from nsim.human.skeleton import forward_kinematics, nsim_skeleton
     from nsim.rendering.compositing import composite_sets
     from nsim.rendering.model import RaySamples
     from nsim.rendering.people import HumanSet
+    from tests.rendering.people_fixture import opaque_person
 
-    cfg_h = HumanModelConfig(hash_levels=4, hash_log2_table_size=10, hash_max_resolution=64, hidden_dim=16,
-                             color_hidden_dim=16, samples_per_ray=16)
-    skeleton = nsim_skeleton(0.9)
-    person = HumanModel(cfg_h, skeleton, torch.Generator().manual_seed(0))
-    with torch.no_grad():
-        person.field.density_mlp.layers[-1].bias.fill_(6.0)  # opaque: the person holds its rays
-    person.eval()
-    loop = LocomotionLoop.from_clip(walk_cycle(1.3, 0.9))
-    root, quats = loop.pose_at(np.array([0.3]), np.array([[0.0, 0.0]]), np.array([0.0]))
-    T = forward_kinematics(skeleton, quats[0], root[0])
+    person, T = opaque_person((0.0, 0.0))
     n = 40
     target = torch.tensor(T[0, :3, 3], dtype=torch.float32) + torch.stack(
         [torch.zeros(n), torch.zeros(n), torch.linspace(-0.3, 0.3, n)], -1)
