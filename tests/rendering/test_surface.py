@@ -315,3 +315,25 @@ def test_people_composite_over_the_surface_in_depth_order():
         else:
             assert int((instance > 0).sum()) == 0
             torch.testing.assert_close(out.rgb, wall.expand(n, 3), atol=1e-4, rtol=0)
+
+
+@pytest.mark.gpu
+def test_surface_bakes_and_renders_on_cuda_as_on_the_cpu(scene):
+    """The surface's cast stays on the CPU (Embree), its texture on CUDA: a CPU bake moved to CUDA renders what it
+    renders on the CPU (the hits exactly), and a bake on CUDA gives nearly the same mesh and rays' ranges."""
+    import copy
+
+    model, grid, frames, _ = scene
+    cpu = bake(model, grid, SURFACE, frames)
+    rays = training_rays(model, frames, 3)
+    a = render_baked(cpu, rays)
+    b = render_baked(cpu.to("cuda"), rays.to("cuda"))
+    assert b.rgb.device.type == "cuda"
+    assert torch.equal(b.accumulation.cpu(), a.accumulation) and torch.equal(b.depth.cpu(), a.depth)
+    torch.testing.assert_close(b.rgb.cpu(), a.rgb, rtol=1e-4, atol=1e-4)
+    gpu = bake(copy.deepcopy(model).to("cuda"), grid.to("cuda"), SURFACE, frames)
+    assert abs(len(gpu.surface.faces) - len(cpu.surface.faces)) <= 0.01 * len(cpu.surface.faces)
+    c = render_baked(gpu, rays.to("cuda"))
+    same = (c.accumulation.cpu() == a.accumulation) & (a.accumulation > 0)
+    assert float(same.float().sum() / (a.accumulation > 0).sum()) > 0.98
+    assert float((c.depth.cpu()[same] - a.depth[same]).abs().median()) < 1e-3
