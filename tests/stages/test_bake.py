@@ -196,9 +196,9 @@ def spot_run(world):
     return "trajectory/t"
 
 
-def spot_args(world, *extra: str) -> list[str]:
+def spot_args(world, *extra: str, baked: str = "baked/t") -> list[str]:
     return ["--workspace", str(world.root), "--device", "cpu", "render", "--trajectory", "trajectory/t",
-            "--scene", "scene/t", "--rig", str(SPOT), "--preset", "tiny", "--set", "method=baked", "--baked", "baked/t",
+            "--scene", "scene/t", "--rig", str(SPOT), "--preset", "tiny", "--set", "method=baked", "--baked", baked,
             *extra]
 
 
@@ -214,16 +214,20 @@ def test_spot_sensors_from_the_baked_scene(world, spot_run):
     assert art.file(f"frontleft/rgb/{i:06d}.png").is_file() and art.file(f"back/depth/{i:06d}.exr").is_file()
 
 
-def test_ray_engine_renders_the_same_shards(world, spot_run, monkeypatch):
-    """The Ray engine (two workers) writes the local engine's files (a baked render, as test_engine's for any)."""
+@pytest.mark.parametrize("baked", ["baked/t", "baked/surface"])
+def test_ray_engine_renders_the_same_shards(world, spot_run, surface_bake, monkeypatch, baked):
+    """The Ray engine (two workers) writes the local engine's files (a baked render, the grid's and the surface's,
+    as test_engine's for any)."""
     pytest.importorskip("ray")
     monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
     from nsim.io.exr import read_depth_exr
     from nsim.io.images import read_image
 
-    assert main([*spot_args(world), "--tag", "render/spot-local"]) == 0
-    assert main([*spot_args(world, "--engine", "ray", "--workers", "2", "--force"), "--tag", "render/spot-ray"]) == 0
-    a, b = (world.get(world.resolve(t)) for t in ("render/spot-local", "render/spot-ray"))
+    name = baked.split("/")[1]
+    assert main([*spot_args(world, baked=baked), "--tag", f"render/spot-local-{name}"]) == 0
+    assert main([*spot_args(world, "--engine", "ray", "--workers", "2", "--force", baked=baked),
+                 "--tag", f"render/spot-ray-{name}"]) == 0
+    a, b = (world.get(world.resolve(f"render/spot-{e}-{name}")) for e in ("local", "ray"))
     files = sorted(p.relative_to(a.path) for p in a.path.rglob("*") if p.suffix in (".png", ".exr", ".ply"))
     assert any("lidar" in str(f) for f in files) and any("rgb" in str(f) for f in files)
     for rel in files:
