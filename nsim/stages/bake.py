@@ -210,9 +210,10 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     frames = training_frames(inputs.scene, ctx, "surface" if cfg.surface else "cull_weight") \
         if cfg.cull_weight is not None or cfg.surface else None
+    # the training images are read (and checked) before any work: the texture is fitted to them
+    images = training_images(inputs.scene, ctx, frames) if cfg.surface and cfg.texture_from == "images" else None
     baked = bake_passes(model, grid, cfg, frames, evaluate)
     if cfg.surface:
-        images = training_images(inputs.scene, ctx, frames) if cfg.texture_from == "images" else None
         baked = bake_surface(model, baked, cfg, frames, targets, seed=ctx.seed, images=images)
     bake_s = time.perf_counter() - t0
     with store.publish(kind="baked-scene", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),

@@ -320,3 +320,27 @@ def test_surface_bake_resumes_and_reruns_to_the_same_artifact(world, surface_bak
     again = bake.run(bake.Inputs(scene="scene/t"), cfg, ctx)
     assert again.parts_reused > 2 and again.baked == surface_bake.id
     assert bake.run(bake.Inputs(scene="scene/t"), dataclasses.replace(cfg), ctx).baked == surface_bake.id
+
+
+def test_a_missing_training_image_stops_the_surface_bake_before_any_work(world, tmp_path, capsys):
+    """The texture is fitted to the training images: one missing is a one-line error (exit 2) before the lattice is
+    baked, and nothing is published (in a copy of the workspace, whose poses artifact loses an image)."""
+    import os
+    import shutil
+
+    from nsim.io.transforms_json import read_transforms
+
+    ws = tmp_path / "ws"
+    shutil.copytree(world.root, ws, ignore=shutil.ignore_patterns("tmp"))
+    copy = Store(ws)
+    poses = copy.get(copy.get(copy.resolve("scene/t")).manifest["inputs"]["poses"])
+    frame = read_transforms(poses.file("transforms.json")).frames[0]
+    os.chmod((poses.path / frame.file_path).parent, 0o755)
+    os.chmod(poses.path / frame.file_path, 0o644)
+    (poses.path / frame.file_path).unlink()
+    before = {a.id for a in copy.artifacts()}
+    capsys.readouterr()
+    assert main(["--workspace", str(ws), "--device", "cpu", "bake", "scene/t", "--preset", "tiny", "--force"]) == 2
+    err = capsys.readouterr().err
+    assert frame.file_path.split("/")[-1] in err and err.count("\n") == 1, err
+    assert {a.id for a in copy.artifacts()} == before
