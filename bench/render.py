@@ -40,10 +40,11 @@ Measures, with the same renderer the stage uses (marching + occupancy grid):
    and whether the outputs are identical. (Spot's 360-degree LiDAR would see the people behind
    the robot within its range, so (a) uses the two front cameras, which cannot.)
 
-``--baked`` measures instead the baked scene (``nsim bake`` with ``--bake-preset``, ``nsim render --set
-method=baked``) against the NeRF (``method: proposal``, the stage's default), side by side in one run:
+``--baked`` measures instead the baked scene (``nsim bake`` with ``--bake-preset``, default ``default``: the surface;
+``tiny`` with ``--quick``; or ``--baked-id``, a bake made before; ``nsim render --set method=baked``) against the
+NeRF (``method: proposal``, the stage's default), side by side in one run:
 
-6. the bake's wall time and size on disk;
+6. the bake's wall time (with ``--baked-id``: the time that bake recorded) and size on disk;
 7. held-out capture views through the stage with both renderers: PSNR / SSIM / LPIPS of the baked images
    against the NeRF's, each one's PSNR / SSIM against the captured images and depth AbsRel against the
    capture's depth;
