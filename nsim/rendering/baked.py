@@ -456,8 +456,7 @@ def _load_surface(baked_dir: Path, doc: dict, aabb: Tensor) -> BakedSurface:
     if faces.size and (faces.min() < 0 or faces.max() >= n_v):
         raise ValueError(f"surface_faces.npy: vertex indices outside 0..{n_v - 1}")
     settings = doc["texture"]
-    stems = ["texture_table"] + [f"texture_layer{k}_{w}" for k in range(2) for w in ("weight", "bias")]
-    arrays = {stem: _read_array(baked_dir / f"{stem}.npy", None, np.float32) for stem in stems}
+    arrays = {stem: _read_array(baked_dir / f"{stem}.npy", None, np.float32) for stem in SurfaceTexture.file_stems()}
     texture = SurfaceTexture.from_arrays(aabb, settings, arrays)
     return BakedSurface(vertices, faces, texture, {k: v for k, v in doc.items()
                                                    if k not in ("vertices", "faces", "texture")})

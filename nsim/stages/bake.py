@@ -86,9 +86,9 @@ def resolve_scene(spec: str, ctx: RunContext) -> str:
     return art_id
 
 
-def training_frames(scene_id: str, ctx: RunContext, setting: str = "cull_weight") -> list:
-    """The cameras the scene was trained on, ``(camera, cam_to_world)`` pairs at the size it trained at: the
-    poses artifact its manifest names, the images ``scene.json`` lists as ``train_images``."""
+def training_frames(scene_id: str, ctx: RunContext, setting: str = "cull_weight") -> tuple[list, list[Path]]:
+    """The cameras the scene was trained on, ``(camera, cam_to_world)`` pairs at the size it trained at, and their
+    images' paths: the poses artifact its manifest names, the images ``scene.json`` lists as ``train_images``."""
     import json
 
     from nsim.io.transforms_json import read_transforms
@@ -101,37 +101,34 @@ def training_frames(scene_id: str, ctx: RunContext, setting: str = "cull_weight"
     if poses is None or "train_images" not in doc:
         raise InputError(f"bake {scene_id[:12]}: {setting} needs the training cameras; the scene names no poses "
                          f"artifact or train_images (set {setting}={'false' if setting == 'surface' else 'null'})")
-    frames = read_transforms(store.get(poses).file("transforms.json")).frames
+    root = store.get(poses).path
+    frames = read_transforms(root / "transforms.json").frames
     size = doc.get("image_size_trained")
-    out = []
+    out, paths = [], []
     for i in doc["train_images"]:
         cam = frames[int(i)].camera
         if size and int(size[0]) != cam.width:
             cam = cam.scaled(int(size[0]) / cam.width)
         out.append((cam, np.asarray(frames[int(i)].cam_to_world, dtype=np.float32)))
-    return out
+        paths.append(root / frames[int(i)].file_path)
+    return out, paths
 
 
-def training_images(scene_id: str, ctx: RunContext, frames: list) -> list[np.ndarray]:
-    """The images the scene was trained on (``train_images`` of the poses artifact its manifest names), each
-    ``(H, W, 3)`` uint8 at its training camera's size (``frames``: :func:`training_frames`), shrunk as the trainer
-    shrinks them (pixel-area averaging)."""
-    import json
-
+def training_images(frames: list, paths: list[Path]) -> list[np.ndarray]:
+    """The training images at ``paths`` (:func:`training_frames`), each ``(H, W, 3)`` uint8 at its camera's size,
+    shrunk as the trainer shrinks them (pixel-area averaging)."""
     from nsim.io.images import read_image
-    from nsim.io.transforms_json import read_transforms
     from nsim.train.scene_data import resize_image
 
-    store = ctx.store
-    art = store.get(scene_id)
-    doc = json.loads(art.file("scene.json").read_text())
-    doc = doc.get("extra", doc)
-    root = store.get(art.manifest["inputs"]["poses"]).path
-    records = read_transforms(root / "transforms.json").frames
-    out = []
-    for i, (cam, _) in zip(doc["train_images"], frames, strict=True):
-        out.append(resize_image(read_image(root / records[int(i)].file_path), cam.width, cam.height))
-    return out
+    return [resize_image(read_image(path), cam.width, cam.height) for (cam, _), path in zip(frames, paths, strict=True)]
+
+
+def _save_part(path: Path, arr) -> None:
+    """One resume part, written whole or not at all (a temp file renamed)."""
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    with open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
+        np.save(fh, arr.cpu().numpy(), allow_pickle=False)
+    os.replace(tmp, path)
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
@@ -178,11 +175,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
                 pieces = [evaluate_lattice(model.field, plan, c, d, min(b, d + c.chunk_points))
                           for d in range(a, b, c.chunk_points)]
                 s, f = torch.cat([p[0] for p in pieces]), torch.cat([p[1] for p in pieces])
-                for path, arr in ((part[1], f), (part[0], s)):  # density last: its presence marks a complete part
-                    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-                    with open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
-                        np.save(fh, arr.cpu().numpy(), allow_pickle=False)
-                    os.replace(tmp, path)
+                _save_part(part[1], f)
+                _save_part(part[0], s)  # density last: its presence marks a complete part
             sig.append(s)
             feats.append(f)
         density = torch.cat(sig) if sig else torch.zeros(0, device=ctx.device)
@@ -199,19 +193,16 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
             else:
                 depth, acc, rgb = nerf_targets(model, grid, rays[a : a + PART_RAYS])
                 part = torch.cat([depth[:, None], acc[:, None], rgb], 1)
-                tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-                with open(tmp, "wb") as fh:
-                    np.save(fh, part.cpu().numpy(), allow_pickle=False)
-                os.replace(tmp, path)
+                _save_part(path, part)
             parts.append(part)
             log.info("bake: the NeRF's surface on %d of %d training rays", min(len(rays), a + PART_RAYS), len(rays))
         t = torch.cat(parts) if parts else torch.zeros(0, 5, device=ctx.device)
         return t[:, 0], t[:, 1], t[:, 2:]
 
-    frames = training_frames(inputs.scene, ctx, "surface" if cfg.surface else "cull_weight") \
-        if cfg.cull_weight is not None or cfg.surface else None
+    frames, paths = training_frames(inputs.scene, ctx, "surface" if cfg.surface else "cull_weight") \
+        if cfg.cull_weight is not None or cfg.surface else (None, None)
     # the training images are read (and checked) before any work: the texture is fitted to them
-    images = training_images(inputs.scene, ctx, frames) if cfg.surface and cfg.texture_from == "images" else None
+    images = training_images(frames, paths) if cfg.surface and cfg.texture_from == "images" else None
     baked = bake_passes(model, grid, cfg, frames, evaluate)
     if cfg.surface:
         baked = bake_surface(model, baked, cfg, frames, targets, seed=ctx.seed, images=images)
