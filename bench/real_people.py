@@ -38,7 +38,8 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
 null). ``--mask-threshold`` and ``--min-visibility`` set the person config's mask cut and the fit's
 visibility cut (their defaults otherwise); ``--no-mirror`` and ``--one-direction`` how the detector
 looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``); ``--no-consistent-sides``
-fits the limbs' sides as the detector labels them (``consistent_sides``); ``--cross`` also trains with the poses and
+fits the limbs' sides as the detector labels them (``consistent_sides``); ``--no-track-outliers`` keeps the
+landmarks that jump off their tracks (``track_outlier_torsos``); ``--cross`` also trains with the poses and
 masks crossed (the fitted poses with the capture's true masks, the true poses with MediaPipe's masks; key
 ``crossed``), which splits the fitted model's gap into what its poses and what its masks cost; ``--fit FIELD=VALUE`` sets a skeleton-fit
 weight (``FitConfig``; the earlier weights, before the sides were made consistent: ``--fit smooth_weight_image=0.5 --fit weight_3d=0.05``).
@@ -189,6 +190,8 @@ def main() -> None:
                          "with MediaPipe's masks): which of the two costs the fitted model more (key crossed)")
     ap.add_argument("--no-consistent-sides", action="store_true",
                     help="fit the detector's left and right limbs as it labels them (consistent_sides=False)")
+    ap.add_argument("--no-track-outliers", action="store_true",
+                    help="keep the landmarks that jump off their tracks in the fit (track_outlier_torsos=None)")
     ap.add_argument("--fit", dest="fit_overrides", action="append", default=[], metavar="FIELD=VALUE",
                     help="a skeleton-fit setting (nsim.human.fit.FitConfig field, a number), e.g. smooth_weight=2")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -226,6 +229,8 @@ def main() -> None:
             person = dataclasses.replace(person, both_directions=False)
         if args.no_consistent_sides:
             person = dataclasses.replace(person, consistent_sides=False)
+        if args.no_track_outliers:
+            person = dataclasses.replace(person, track_outlier_torsos=None)
         if args.min_visibility is not None:
             person = dataclasses.replace(person, fit=dataclasses.replace(person.fit, min_visibility=args.min_visibility))
         for item in args.fit_overrides:
@@ -250,6 +255,8 @@ def main() -> None:
                               "min_visibility": person.fit.min_visibility, "fit": dataclasses.asdict(person.fit),
                               "mirror_landmarks": person.mirror_landmarks, "both_directions": person.both_directions,
                               "consistent_sides": person.consistent_sides, "sides_relabelled": report["sides_relabelled"],
+                              "track_outlier_torsos": person.track_outlier_torsos,
+                              "track_outliers": len(report["track_outliers"]),
                               "camera": report["camera"],
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),

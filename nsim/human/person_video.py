@@ -21,14 +21,22 @@ a ``MotionClip`` (``nsim.human.bvh.write_bvh`` writes it as the person's own BVH
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.human.fit import FitConfig, ImageLandmarks, PoseFit, estimate_body, fit_poses
-from nsim.human.landmarks import TRAINING_MASK_THRESHOLD, Observations, consistent_sides, person_training_mask
+from nsim.human.landmarks import (
+    LANDMARK_NAMES,
+    TRACK_OUTLIER_TORSOS,
+    TRAINING_MASK_THRESHOLD,
+    Observations,
+    consistent_sides,
+    person_training_mask,
+    track_outliers,
+)
 from nsim.human.monocular import place_landmarks, static_camera
 
 REFERENCE_WIDTH_PX = 480
@@ -63,6 +71,8 @@ class PersonVideoConfig:
         backward); the looks at a frame are averaged.
     consistent_sides: relabel the legs' and arms' left and right landmarks where the detector's labelling jumps
         from frame to frame (``nsim.human.landmarks.consistent_sides``) before fitting.
+    track_outlier_torsos: a landmark farther than this many torso lengths from where its own track's neighbours
+        put it in the image is left out of the fit (``nsim.human.landmarks.track_outliers``); None: none is.
     """
 
     hfov_deg: float | None = None
@@ -77,8 +87,13 @@ class PersonVideoConfig:
     mirror_landmarks: bool = True
     both_directions: bool = True
     consistent_sides: bool = True
+    track_outlier_torsos: float | None = TRACK_OUTLIER_TORSOS
 
     def __post_init__(self) -> None:
+        if self.track_outlier_torsos is not None and not (math.isfinite(self.track_outlier_torsos)
+                                                          and self.track_outlier_torsos > 0.0):
+            raise ValueError(f"PersonVideoConfig.track_outlier_torsos: must be > 0 or None, got "
+                             f"{self.track_outlier_torsos!r}")
         if not (0.0 < self.mask_threshold < 1.0):
             raise ValueError(f"PersonVideoConfig.mask_threshold: must be in (0, 1), got {self.mask_threshold!r}")
         if self.camera not in CAMERA_MODES:
@@ -123,6 +138,8 @@ class PersonFit:
     masks: (K, H, W) bool person masks. dropped: stretches of frames left out.
     fps: the video's frame rate. relabelled: per limb pair (``nsim.human.landmarks.LIMB_SIDES``), the video
     frames whose left and right landmarks were exchanged before fitting (``PersonVideoConfig.consistent_sides``).
+    track_outliers: (video frame, landmark name) of every landmark left out of the fit as off its track
+    (``PersonVideoConfig.track_outlier_torsos``).
     """
 
     frames: np.ndarray
@@ -135,6 +152,7 @@ class PersonFit:
     dropped: tuple[DroppedStretch, ...]
     fps: float
     relabelled: dict[str, list[int]] = field(default_factory=dict)
+    track_outliers: tuple[tuple[int, str], ...] = ()
 
     def human_poses(self, file_paths: tuple[str | None, ...] | None = None):
         """The poses as ``nsim.human.data.HumanPoses`` (root orientation in ``root_to_world``)."""
@@ -197,6 +215,10 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     relabelled: dict[str, list[int]] = {}
     if cfg.consistent_sides:
         obs, relabelled = consistent_sides(obs, keep)
+    outliers = np.zeros(obs.visibility.shape, dtype=bool)
+    if cfg.track_outlier_torsos is not None:  # after the sides are consistent: a swap is not an outlier
+        outliers = track_outliers(obs.image_uv_px, keep, cfg.track_outlier_torsos)
+        obs = replace(obs, visibility=np.where(outliers, 0.0, obs.visibility))
     try:
         if camera_path is None:
             camera = static_camera(obs.width, obs.height, cfg.hfov_deg)
@@ -234,7 +256,8 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     masks = np.stack([person_training_mask(obs.person_masks[f], obs.image_uv_px[f], cfg.mask_threshold)
                       for f in frames])
     return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
-                     tuple(dropped), float(fps), relabelled)
+                     tuple(dropped), float(fps), relabelled,
+                     tuple((int(f), LANDMARK_NAMES[k]) for f, k in zip(*np.nonzero(outliers & keep[:, None]), strict=True)))
 
 
 __all__ = ["CAMERA_MODES", "CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person"]

@@ -155,6 +155,7 @@ def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray
         "landmark_error_median_m": float(np.nanmedian(fit.poses.landmark_error_m)),
         "dropped": [d.describe(fit.fps) for d in fit.dropped],
         "sides_relabelled": fit.relabelled,
+        "track_outliers": [[f, name] for f, name in fit.track_outliers],
     }
     atomic_write_text(out_dir / PERSON_FIT_FILE, json.dumps(report, indent=1) + "\n")
     return report
@@ -198,6 +199,10 @@ def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None
         if frames_relabelled:
             log.info("%s: the %s' left and right landmarks exchanged in %d frames (%s)", source.path, limb,
                      len(frames_relabelled), ", ".join(map(str, frames_relabelled)))
+    if fit.track_outliers:
+        log.info("%s: %d landmarks off their tracks left out of the fit (%s)", source.path, len(fit.track_outliers),
+                 ", ".join(f"frame {f} {name}" for f, name in fit.track_outliers[:8])
+                 + (", ..." if len(fit.track_outliers) > 8 else ""))
     return write_person_data(Path(out_dir), frames, index, fit)
 
 

@@ -21,6 +21,7 @@ from nsim.human.landmarks import (
     other_people,
     other_people_blobs,
     person_training_mask,
+    track_outliers,
     unmirror,
 )
 
@@ -323,3 +324,42 @@ def test_mediapipe_mirrored_look_agrees_with_the_direct_one(tmp_path):
     with MediaPipePoseDetector(find_others=False) as det:  # the default: both looks, averaged
         both = det(images[0])
     assert np.linalg.norm(both.image_uv_px[torso] - direct[0].image_uv_px[torso], axis=-1).max() < 8.0
+
+
+def test_track_outliers_finds_a_jump_and_not_a_fast_smooth_swing():
+    """A wrist swinging 0.45 torso lengths a frame on a smooth path is on its track; two frames 1.2 torso lengths
+    off are not; frames at a run's ends (and at a gap, which starts a new run) are never called outliers."""
+    F = 20
+    uv = np.zeros((F, 33, 2))
+    i = {n: LANDMARK_NAMES.index(n) for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder", "left_wrist")}
+    t = np.arange(F)
+    walk = np.stack([100.0 + 12.0 * t, np.full(F, 200.0)], axis=1)  # the hips' midpoint moves 12 px a frame
+    uv[:] = walk[:, None]
+    uv[:, i["left_hip"], 0] -= 10
+    uv[:, i["right_hip"], 0] += 10
+    uv[:, i["left_shoulder"]] += (-12, -100)
+    uv[:, i["right_shoulder"]] += (12, -100)  # torso: 100 px
+    uv[:, i["left_wrist"], 0] += 80.0 * np.sin(2 * np.pi * t / 11.0)  # up to 46 px a frame
+    uv[:, i["left_wrist"], 1] -= 10.0
+    assert not track_outliers(uv).any()
+    bad = uv.copy()
+    bad[[8, 9], i["left_wrist"]] += (100.0, 60.0)
+    out = track_outliers(bad)
+    assert sorted(zip(*np.nonzero(out), strict=True)) == [(8, i["left_wrist"]), (9, i["left_wrist"])]
+    # a frame with fewer than two frames on a side is not judged, nor does a jump there make its neighbours
+    # outliers: with frame 9 left out, the jump at frame 8 ends a run
+    frames = np.ones(F, bool)
+    frames[9] = False
+    assert not track_outliers(bad, frames).any()
+    one = uv.copy()
+    one[12, i["left_wrist"]] += (100.0, 60.0)
+    assert np.flatnonzero(track_outliers(one, frames)[:, i["left_wrist"]]).tolist() == [12]
+    assert not track_outliers(bad, max_torsos=2.0).any()
+    # unseen landmarks (NaN) are never outliers, nor do they make their neighbours ones
+    gap = bad.copy()
+    gap[10:12, i["left_wrist"]] = np.nan
+    assert not track_outliers(gap)[10:12].any()
+    with pytest.raises(ValueError, match="uv_px"):
+        track_outliers(np.zeros((5, 33)))
+    with pytest.raises(ValueError, match="window"):
+        track_outliers(uv, window=0)
