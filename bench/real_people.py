@@ -41,7 +41,11 @@ looks at the frames (``PersonVideoConfig.mirror_landmarks``, ``both_directions``
 fits the limbs' sides as the detector labels them (``consistent_sides``); ``--no-track-outliers`` keeps the
 landmarks that jump off their tracks (``track_outlier_torsos``); ``--cross`` also trains with the poses and
 masks crossed (the fitted poses with the capture's true masks, the true poses with MediaPipe's masks; key
-``crossed``), which splits the fitted model's gap into what its poses and what its masks cost; ``--fit FIELD=VALUE`` sets a skeleton-fit
+``crossed``), which splits the fitted model's gap into what its poses and what its masks cost; ``--blend A,B,...``
+also trains on the capture's true cameras, images and masks with every kept frame's pose moved a share A of
+the way from the true pose to the fitted one (``blended_folder``; key ``pose_blend``: each share's PA-MPJPE,
+PSNR in the box, its gap below the true poses' and render IoU), so how far the PSNR falls with pose error alone;
+``--device`` runs the trainings on another device (default cpu); ``--fit FIELD=VALUE`` sets a skeleton-fit
 weight (``FitConfig``; the earlier weights, before the sides were made consistent: ``--fit smooth_weight_image=0.5 --fit weight_3d=0.05``).
 Prints a table; the
 last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``,
@@ -170,6 +174,37 @@ def cross_folders(person_dir: Path, truth_dir: Path, capture_dir: Path, tmp: Pat
     return {"fitted_poses_true_masks": poses_fitted, "true_poses_mediapipe_masks": poses_true}
 
 
+def blended_folder(person_dir: Path, truth_dir: Path, alpha: float, out: Path) -> float:
+    """``--blend``: the true folder (cameras, images, masks, bone lengths) with each kept frame's pose moved a share
+    ``alpha`` of the way from the true pose to the fitted one (0: the truth; 1: the fitted pose). The fitted pose
+    is first carried into the true world through the frame's cameras (fitted camera -> true camera), so the
+    fitted cameras' own errors are left out; local rotations and the root's orientation are interpolated along the
+    shortest arc (slerp), the root's position linearly. Writes ``out`` and returns the blended poses' PA-MPJPE
+    (cm) against the truth over the kept frames."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from nsim.human.data import HumanData, write_poses
+    from nsim.human.fit import mpjpe_m
+
+    truth, fitted = HumanData.load(truth_dir), HumanData.load(person_dir)
+    index = [int(Path(p).stem.split("_")[-1]) for p in fitted.image_paths]
+    cams_true, cams_fit = truth.cam_to_world(), fitted.cam_to_world()
+    root, quats = truth.poses.root_to_world.copy(), truth.poses.local_rotations_wxyz.copy()
+    for row, k in enumerate(index):
+        fit_root = cams_true[k] @ np.linalg.inv(cams_fit[row]) @ fitted.poses.root_to_world[row]
+        turns = Rotation.from_matrix(np.stack([root[k, :3, :3], fit_root[:3, :3]]))
+        root[k, :3, :3] = Slerp([0.0, 1.0], turns)(alpha).as_matrix()
+        root[k, :3, 3] = (1.0 - alpha) * root[k, :3, 3] + alpha * fit_root[:3, 3]
+        for j in range(quats.shape[1]):  # wxyz <-> scipy's xyzw
+            pair = np.stack([quats[k, j], fitted.poses.local_rotations_wxyz[row, j]])[:, [1, 2, 3, 0]]
+            q = Slerp([0.0, 1.0], Rotation.from_quat(pair))(alpha).as_quat()[[3, 0, 1, 2]]
+            quats[k, j] = q if q[0] >= 0 else -q
+    shutil.copytree(truth_dir, out)
+    write_poses(out / "poses.json", dataclasses.replace(truth.poses, root_to_world=root, local_rotations_wxyz=quats))
+    blended = HumanData.load(out).joint_transforms()[index][..., :3, 3]
+    return float(100 * mpjpe_m(blended, truth.joint_transforms()[index][..., :3, 3]).mean())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -188,6 +223,10 @@ def main() -> None:
     ap.add_argument("--cross", action="store_true",
                     help="also train with the poses and masks crossed (fitted poses with the true masks, true poses "
                          "with MediaPipe's masks): which of the two costs the fitted model more (key crossed)")
+    ap.add_argument("--blend", default=None, metavar="A,B,...",
+                    help="also train on the true cameras, images and masks with the poses moved each share A of the way "
+                         "from the true ones to the fitted ones (how far the PSNR falls with pose error; key pose_blend)")
+    ap.add_argument("--device", default="cpu", help="the trainings' device: cpu, cuda, auto (default cpu)")
     ap.add_argument("--no-consistent-sides", action="store_true",
                     help="fit the detector's left and right limbs as it labels them (consistent_sides=False)")
     ap.add_argument("--no-track-outliers", action="store_true",
@@ -212,7 +251,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         store = Store(args.workspace or tmp / "ws")
-        ctx = RunContext(store=store, device_spec="cpu", seed=0, progress=False)
+        ctx = RunContext(store=store, device_spec=args.device, seed=0, progress=False)
         t0 = time.perf_counter()
         cap_cfg = load_config(capture.Config, stage="capture", preset="default", overrides=cap_over)
         cap = store.get(capture.run(capture.Inputs(), cap_cfg, ctx).capture)
@@ -296,6 +335,22 @@ def main() -> None:
                 mean = json.loads(art.file("eval.json").read_text())["mean"]
                 crossed[name] = {k: round(mean[k], 4) for k in ("psnr_box", "mask_iou", "psnr_box_given_poses",
                                                                 "mask_iou_given_poses") if k in mean}
+        blend = []
+        if args.blend:  # PSNR against pose error alone: the truth with the poses moved towards the fitted ones
+            base = evals["truth"]
+            blend.append({"alpha": 0.0, "mpjpe_cm": 0.0, "psnr_box": round(base["psnr_box"], 3), "psnr_gap_db": 0.0,
+                          "iou_render": round(base["mask_iou"], 4)})
+            for alpha in sorted({float(a) for a in args.blend.split(",")} - {0.0}):
+                folder = tmp / f"blend_{alpha:g}"
+                err = blended_folder(person_dir, truth_dir, alpha, folder)
+                art = store.get(train_human.run(train_human.Inputs(folder=folder), cfg, ctx).human)
+                mean = json.loads(art.file("eval.json").read_text())["mean"]
+                blend.append({"alpha": alpha, "mpjpe_cm": round(err, 3), "psnr_box": round(mean["psnr_box"], 3),
+                              "psnr_gap_db": round(base["psnr_box"] - mean["psnr_box"], 3),
+                              "iou_render": round(mean["mask_iou"], 4)})
+                print(f"blend {alpha:g}: PA-MPJPE {err:.2f} cm, PSNR box {mean['psnr_box']:.2f} "
+                      f"({base['psnr_box'] - mean['psnr_box']:+.2f} dB below the true poses), "
+                      f"render IoU {mean['mask_iou']:.3f}", flush=True)
     print(f"actor capture {cap_over[2:]} in {cap_s:.0f} s (camera {report['camera']}); person fit in {fit_s_person:.0f} s, "
           f"{report['frames_kept']} of {report['frames_in']} frames kept, height {report['height_m']:.2f} m, "
           f"camera height {report['camera_height_m']:.2f} m")
@@ -346,6 +401,7 @@ def main() -> None:
                           round(evals["truth"]["mask_iou_true_masks_given_poses"], 4),
                       "held_out_fit": {name: {k: round(v, 3) for k, v in moved.items()} for name, moved in fits.items()},
                       **({"crossed": crossed} if crossed else {}),
+                      **({"pose_blend": blend} if blend else {}),
                       "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s_person, 1),
                                        **{f"train_{k}": round(v, 1) for k, v in walls.items()},
                                        **{f"held_out_fit_{k}": round(v, 1) for k, v in fit_s.items()}}}))
