@@ -580,6 +580,6 @@ class MediaPipePoseDetector:
 
 
 __all__ = ["LANDMARK_BONES", "LANDMARK_NAMES", "LIMB_SIDES", "MIRRORED_LANDMARKS", "PEOPLE_EXTRA", "SIDE_SWITCH_COST",
-           "TRAINING_MASK_THRESHOLD", "FrameObservation", "MediaPipePoseDetector", "Observations", "PoseDetector",
+           "TRACK_OUTLIER_TORSOS", "TRACK_OUTLIER_WINDOW", "TRAINING_MASK_THRESHOLD", "FrameObservation", "MediaPipePoseDetector", "Observations", "PoseDetector",
            "average_looks", "confirmed_person", "consistent_sides", "limb_side_switches", "observe", "other_people",
-           "other_people_blobs", "person_training_mask", "unmirror"]
+           "other_people_blobs", "person_training_mask", "track_outliers", "unmirror"]

@@ -8,6 +8,8 @@ in (a detector's ``nsim.human.landmarks.Observations``), arrays out (``PersonFit
    ``max_crowded_fraction`` of the frames where someone was found; too few frames left;
 2. drops the frames without the person or with a second person in view, and reports them as
    stretches (``DroppedStretch``: first and last frame, why);
+   makes the limbs' left and right consistent over the video (``consistent_sides``) and gives no weight to
+   landmarks that jump off their own image track (``track_outliers``: a hidden arm guessed far off);
 3. places the landmarks in a metric z-up world seen by a static camera (``nsim.human.monocular``),
    or by a moving camera whose path SfM found (``nsim.human.moving_camera``; ``camera_path``);
 4. estimates the person's bone lengths once and fits joint angles per frame to the landmarks in
