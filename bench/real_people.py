@@ -181,24 +181,20 @@ def blended_folder(person_dir: Path, truth_dir: Path, alpha: float, out: Path) -
     fitted cameras' own errors are left out; local rotations and the root's orientation are interpolated along the
     shortest arc (slerp), the root's position linearly. Writes ``out`` and returns the blended poses' PA-MPJPE
     (cm) against the truth over the kept frames."""
-    from scipy.spatial.transform import Rotation, Slerp
-
+    from nsim.geometry.transforms import matrix_from_quat_wxyz, quat_wxyz_from_matrix
     from nsim.human.data import HumanData, write_poses
     from nsim.human.fit import mpjpe_m
+    from nsim.human.skeleton import quat_slerp_wxyz
 
     truth, fitted = HumanData.load(truth_dir), HumanData.load(person_dir)
     index = [int(Path(p).stem.split("_")[-1]) for p in fitted.image_paths]
-    cams_true, cams_fit = truth.cam_to_world(), fitted.cam_to_world()
+    # the fitted roots carried into the true world through each frame's cameras (fitted camera -> true camera)
+    fit_root = truth.cam_to_world()[index] @ np.linalg.inv(fitted.cam_to_world()) @ fitted.poses.root_to_world
     root, quats = truth.poses.root_to_world.copy(), truth.poses.local_rotations_wxyz.copy()
-    for row, k in enumerate(index):
-        fit_root = cams_true[k] @ np.linalg.inv(cams_fit[row]) @ fitted.poses.root_to_world[row]
-        turns = Rotation.from_matrix(np.stack([root[k, :3, :3], fit_root[:3, :3]]))
-        root[k, :3, :3] = Slerp([0.0, 1.0], turns)(alpha).as_matrix()
-        root[k, :3, 3] = (1.0 - alpha) * root[k, :3, 3] + alpha * fit_root[:3, 3]
-        for j in range(quats.shape[1]):  # wxyz <-> scipy's xyzw
-            pair = np.stack([quats[k, j], fitted.poses.local_rotations_wxyz[row, j]])[:, [1, 2, 3, 0]]
-            q = Slerp([0.0, 1.0], Rotation.from_quat(pair))(alpha).as_quat()[[3, 0, 1, 2]]
-            quats[k, j] = q if q[0] >= 0 else -q
+    turn = quat_slerp_wxyz(quat_wxyz_from_matrix(root[index, :3, :3]), quat_wxyz_from_matrix(fit_root[:, :3, :3]), alpha)
+    root[index, :3, :3] = matrix_from_quat_wxyz(turn)
+    root[index, :3, 3] = (1.0 - alpha) * root[index, :3, 3] + alpha * fit_root[:, :3, 3]
+    quats[index] = quat_slerp_wxyz(quats[index], fitted.poses.local_rotations_wxyz, alpha)
     shutil.copytree(truth_dir, out)
     write_poses(out / "poses.json", dataclasses.replace(truth.poses, root_to_world=root, local_rotations_wxyz=quats))
     blended = HumanData.load(out).joint_transforms()[index][..., :3, 3]

@@ -392,6 +392,12 @@ def limb_side_switches(body_m: np.ndarray, parts: tuple[str, ...], switch_cost: 
     return states
 
 
+def consecutive_runs(indices: np.ndarray) -> list[np.ndarray]:
+    """The runs of consecutive integers in increasing ``indices (N,)``: ``[0, 1, 2, 5, 6] -> [[0, 1, 2], [5, 6]]``."""
+    indices = np.asarray(indices)
+    return np.split(indices, np.flatnonzero(np.diff(indices) != 1) + 1) if indices.size else []
+
+
 def consistent_sides(obs: Observations, frames: np.ndarray | None = None,
                      switch_cost: float = SIDE_SWITCH_COST) -> tuple[Observations, dict[str, list[int]]]:
     """``obs`` with each limb pair's (``LIMB_SIDES``) left and right landmarks exchanged where
@@ -402,7 +408,7 @@ def consistent_sides(obs: Observations, frames: np.ndarray | None = None,
     found = np.flatnonzero(obs.found if frames is None else np.asarray(frames, dtype=bool) & obs.found)
     uv, body, vis = obs.image_uv_px.copy(), obs.body_m.copy(), obs.visibility.copy()
     changed: dict[str, list[int]] = {}
-    runs = np.split(found, np.flatnonzero(np.diff(found) != 1) + 1) if found.size else []
+    runs = consecutive_runs(found)
     for limb, parts in LIMB_SIDES.items():
         flip = np.concatenate([run[limb_side_switches(body[run], parts, switch_cost)] for run in runs] or
                               [np.zeros(0, dtype=np.int64)])
@@ -452,7 +458,7 @@ def track_outliers(uv_px: np.ndarray, frames: np.ndarray | None = None, max_tors
     torso = _torso_length(uv)
     out = np.zeros((F, L), dtype=bool)
     kept = np.flatnonzero(use & np.isfinite(torso) & (torso > 0))
-    for run in (np.split(kept, np.flatnonzero(np.diff(kept) != 1) + 1) if kept.size else []):
+    for run in consecutive_runs(kept):
         for k in range(L):
             track = run[np.isfinite(rel[run, k]).all(axis=1)]  # the frames where the landmark is seen
             while track.size >= 3:
@@ -580,6 +586,7 @@ class MediaPipePoseDetector:
 
 
 __all__ = ["LANDMARK_BONES", "LANDMARK_NAMES", "LIMB_SIDES", "MIRRORED_LANDMARKS", "PEOPLE_EXTRA", "SIDE_SWITCH_COST",
-           "TRACK_OUTLIER_TORSOS", "TRACK_OUTLIER_WINDOW", "TRAINING_MASK_THRESHOLD", "FrameObservation", "MediaPipePoseDetector", "Observations", "PoseDetector",
-           "average_looks", "confirmed_person", "consistent_sides", "limb_side_switches", "observe", "other_people",
-           "other_people_blobs", "person_training_mask", "track_outliers", "unmirror"]
+           "TRACK_OUTLIER_TORSOS", "TRACK_OUTLIER_WINDOW", "TRAINING_MASK_THRESHOLD", "FrameObservation",
+           "MediaPipePoseDetector", "Observations", "PoseDetector", "average_looks", "confirmed_person",
+           "consecutive_runs", "consistent_sides", "limb_side_switches", "observe", "other_people", "other_people_blobs",
+           "person_training_mask", "track_outliers", "unmirror"]

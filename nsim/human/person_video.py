@@ -35,6 +35,7 @@ from nsim.human.landmarks import (
     TRACK_OUTLIER_TORSOS,
     TRAINING_MASK_THRESHOLD,
     Observations,
+    consecutive_runs,
     consistent_sides,
     person_training_mask,
     track_outliers,
@@ -182,11 +183,7 @@ class PersonFit:
 
 
 def _stretches(frames: np.ndarray, reason: str) -> list[DroppedStretch]:
-    idx = np.flatnonzero(frames)
-    if idx.size == 0:
-        return []
-    cuts = np.flatnonzero(np.diff(idx) != 1) + 1
-    return [DroppedStretch(int(r[0]), int(r[-1]), reason) for r in np.split(idx, cuts)]
+    return [DroppedStretch(int(r[0]), int(r[-1]), reason) for r in consecutive_runs(np.flatnonzero(frames))]
 
 
 def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVideoConfig(),
@@ -259,7 +256,7 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
                       for f in frames])
     return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
                      tuple(dropped), float(fps), relabelled,
-                     tuple((int(f), LANDMARK_NAMES[k]) for f, k in zip(*np.nonzero(outliers & keep[:, None]), strict=True)))
+                     tuple((int(f), LANDMARK_NAMES[k]) for f, k in np.argwhere(outliers)))
 
 
 __all__ = ["CAMERA_MODES", "CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person"]
