@@ -232,6 +232,21 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="a train_human config override for both trainings, e.g. refine.lr=0 (repeatable)")
     args = ap.parse_args()
+    from nsim.context import resolve_device
+    from nsim.errors import InputError
+
+    try:
+        resolve_device(args.device)
+    except InputError as err:
+        ap.error(str(err))
+    blend_shares: list[float] = []
+    if args.blend:  # checked before any work
+        try:
+            blend_shares = sorted({float(a) for a in args.blend.split(",")} - {0.0})
+        except ValueError:
+            ap.error(f"--blend {args.blend}: expected shares in [0, 1] separated by commas, e.g. 0.25,0.5,1")
+        if not all(0.0 < a <= 1.0 for a in blend_shares):
+            ap.error(f"--blend {args.blend}: every share must be in [0, 1]")
     from nsim.human.person_video import PersonVideoConfig
     from nsim.train.human_data_video import PersonSource, prepare_person_data
 
@@ -336,7 +351,7 @@ def main() -> None:
             base = evals["truth"]
             blend.append({"alpha": 0.0, "mpjpe_cm": 0.0, "psnr_box": round(base["psnr_box"], 3), "psnr_gap_db": 0.0,
                           "iou_render": round(base["mask_iou"], 4)})
-            for alpha in sorted({float(a) for a in args.blend.split(",")} - {0.0}):
+            for alpha in blend_shares:
                 folder = tmp / f"blend_{alpha:g}"
                 err = blended_folder(person_dir, truth_dir, alpha, folder)
                 art = store.get(train_human.run(train_human.Inputs(folder=folder), cfg, ctx).human)
