@@ -48,7 +48,7 @@ def test_closed_port_fails_fast_in_one_line(closed_port, form):
     t0 = time.monotonic()
     with pytest.raises(NsimError) as err:
         check_ray_address(address, "$RAY_ADDRESS")
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 60  # refused at once (Ray itself would retry for minutes); generous when busy
     msg = str(err.value)
     assert msg.startswith(f"$RAY_ADDRESS {address}: cannot connect to a Ray cluster there (127.0.0.1:{closed_port}: ")
     assert "\n" not in msg
@@ -78,9 +78,14 @@ def test_ray_session_fails_fast(closed_port, monkeypatch):
     if ray.is_initialized():
         pytest.skip("this process already runs Ray (ray_session reuses it)")
     monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{closed_port}")
+
+    def no_init(*args, **kwargs):  # the probe must refuse before Ray's own connection retries start
+        raise AssertionError("ray.init was reached")
+
+    monkeypatch.setattr(ray, "init", no_init)
     t0 = time.monotonic()
     with pytest.raises(NsimError, match=rf"^\$RAY_ADDRESS 127\.0\.0\.1:{closed_port}: cannot connect"):
         with ray_session(None, num_cpus=1):
             pass
-    assert time.monotonic() - t0 < 10
+    assert time.monotonic() - t0 < 60  # Ray itself would retry for minutes; generous for a busy machine
     assert not ray.is_initialized()

@@ -86,6 +86,11 @@ def test_unreachable_ray_cluster_fails_in_seconds(run_cli, tmp_path, monkeypatch
     ray = pytest.importorskip("ray")
     if ray.is_initialized():
         pytest.skip("this process already runs Ray (render would reuse it)")
+
+    def no_init(*args, **kwargs):  # the probe must refuse before Ray's own connection retries start
+        raise AssertionError("ray.init was reached")
+
+    monkeypatch.setattr(ray, "init", no_init)
     address = f"127.0.0.1:{closed_port}"
     args = ["render", "--trajectory", "trajectory/nothere", "--rig", SPOT, "--engine", "ray"]
     if via == "env":
@@ -95,7 +100,7 @@ def test_unreachable_ray_cluster_fails_in_seconds(run_cli, tmp_path, monkeypatch
         args += ["--address", address]
     t0 = time.monotonic()
     code, _, err = run_cli(*args)
-    assert time.monotonic() - t0 < 15
+    assert time.monotonic() - t0 < 90  # Ray itself would retry for minutes; generous for a busy machine
     where = "$RAY_ADDRESS" if via == "env" else "--address"
     _one_line_error(code, err, f"{where} {address}: cannot connect to a Ray cluster there")
     _nothing_published(tmp_path)

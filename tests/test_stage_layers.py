@@ -138,3 +138,11 @@ def test_size_violations_are_found_and_named(tmp_path):
         "grown.py: 321 lines (at most 320)",
     ]
     assert stage_size_violations(tmp_path, 400) == []
+
+
+def test_every_stage_says_whether_it_repeats_across_cpus():
+    """nsim.stages.BIT_STABLE covers every stage once (bench/reproducible.py and tests/data/demo_ids.json use it)."""
+    from nsim.stages import BIT_STABLE, STAGE_MODULES
+
+    assert set(BIT_STABLE) == set(STAGE_MODULES)
+    assert all(isinstance(v, bool) and why for v, why in BIT_STABLE.values())

@@ -163,6 +163,7 @@ def controller_table_markdown(rows: list[dict[str, Any]]) -> str:
 
 def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg) -> None:
     from nsim.crowd.paths import yaw_poses_se3
+    from nsim.io.canonical import canonical_floats, round_decimals
     from nsim.io.tum import Trajectory, write_tum
 
     crowd = sim.crowd
@@ -180,6 +181,9 @@ def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg) -> No
     if sim.robot_command_body is not None:
         arrays["robot_command_body"] = sim.robot_command_body
         arrays["robot_executed_body"] = sim.robot_executed_body
+    # floats rounded to 1e-9 (m, rad, m/s, s: nsim.io.canonical), so that numpy's other SIMD paths on another
+    # CPU (its arctan2 and sin differ in the last bits) write the same bytes
+    arrays = {k: round_decimals(v) if np.asarray(v).dtype.kind == "f" else v for k, v in arrays.items()}
     save_npz_deterministic(out_dir / "trajectory.npz", arrays)
     write_tum(out_dir / "robot.tum", Trajectory.from_poses(sim.time_s, sim.robot_pose_se3))
     (out_dir / "humans").mkdir()
@@ -187,7 +191,7 @@ def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg) -> No
         poses = yaw_poses_se3(crowd.position_m[:, i], crowd.heading_rad[:, i], 0.0)
         write_tum(out_dir / "humans" / f"{h.id}.tum", Trajectory.from_poses(sim.time_s, poses))
     (out_dir / "metrics.json").write_text(
-        json.dumps(metrics, indent=1, sort_keys=True, allow_nan=False) + "\n"
+        json.dumps(canonical_floats(metrics), indent=1, sort_keys=True, allow_nan=False) + "\n"
     )
     (out_dir / "scenario.json").write_text(json.dumps(sc.data, indent=1, sort_keys=True) + "\n")
     occupancy = {

@@ -361,7 +361,9 @@ def read_bvh(path: str | os.PathLike[str], unit: str | float = "auto", axes: str
 
 
 def _fmt(values, decimals: int = 6) -> str:
-    return " ".join(f"{float(v) + 0.0:.{decimals}f}" for v in values)
+    """Fixed-point text of ``values``; a value that rounds to zero is written ``0.000000``, never ``-0.000000``
+    (a last-bit difference between CPUs must not flip the sign in the text)."""
+    return " ".join(f"{round(float(v), decimals) + 0.0:.{decimals}f}" for v in values)
 
 
 def format_bvh(clip: MotionClip, unit: str = "cm", euler_order: str = "ZXY", axes: str = "y_up") -> str:

@@ -190,10 +190,14 @@ def poses_to_dict(poses: HumanPoses) -> dict[str, Any]:
 
 
 def write_poses(path: str | os.PathLike, poses: HumanPoses) -> Path:
-    """Write ``poses`` as ``poses.json`` (atomically; floats round-trip exactly). Returns the path."""
+    """Write ``poses`` as ``poses.json`` (atomically; floats rounded to 1e-9, ``nsim.io.canonical``: the same
+    bytes on every CPU). Returns the path."""
+    from nsim.io.canonical import POSE_DECIMALS, canonical_floats
+
     path = Path(path)
+    doc = canonical_floats(poses_to_dict(poses), decimals=POSE_DECIMALS)
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(poses_to_dict(poses), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     return path
 
 

@@ -42,6 +42,7 @@ from nsim.geometry.conventions import (
 )
 from nsim.geometry.transforms import is_rotation
 from nsim.io import atomic_path
+from nsim.io.canonical import round_decimals
 
 INTRINSIC_KEYS = ("camera_model", "w", "h", "fl_x", "fl_y", "cx", "cy", "k1", "k2", "k3", "k4", "k5", "k6", "p1",
                   "p2")
@@ -430,6 +431,8 @@ def _check_extra(extra: dict, known: tuple[str, ...], where: str) -> None:
 def write_transforms(path: str | os.PathLike, data: TransformsData) -> Path:
     """Write ``data`` as a nerfstudio transforms.json (OpenGL axes, atomically). Returns the path.
 
+    Poses are rounded to 1e-9 (``nsim.io.canonical``), so the same poses give the same bytes on every CPU.
+
     Intrinsic keys equal in every frame go to the top level, the others into each frame.
     """
     _check_extra(data.extra, TOP_KEYS + INTRINSIC_KEYS, "TransformsData.extra")
@@ -440,12 +443,12 @@ def write_transforms(path: str | os.PathLike, data: TransformsData) -> Path:
     out: dict[str, Any] = dict(shared)
     out.update(data.extra)
     if data.applied_transform is not None:
-        out["applied_transform"] = np.asarray(data.applied_transform, dtype=np.float64).tolist()
+        out["applied_transform"] = round_decimals(data.applied_transform).tolist()
     frames = []
     for i, (frame, cam) in enumerate(zip(data.frames, cameras, strict=True)):
         _check_extra(frame.extra, FRAME_KEYS + INTRINSIC_KEYS, f"frames[{i}].extra")
         d: dict[str, Any] = {"file_path": frame.file_path,
-                             "transform_matrix": opencv_to_opengl_c2w(frame.cam_to_world).tolist()}
+                             "transform_matrix": round_decimals(opencv_to_opengl_c2w(frame.cam_to_world)).tolist()}
         d.update({k: v for k, v in cam.items() if k not in shared})
         for key, attr in (("depth_file_path", "depth_file_path"), ("mask_path", "mask_path"), ("timestamp", "timestamp_s")):
             if (value := getattr(frame, attr)) is not None:

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.io import atomic_path
+from nsim.io.canonical import round_decimals
 
 log = logging.getLogger(__name__)
 
@@ -126,9 +127,10 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
 
 
 def write_tum(path: str | os.PathLike, traj: Trajectory) -> Path:
-    """Write `traj` atomically as a TUM file with a header comment; floats as `repr` (exact round trip)."""
+    """Write `traj` atomically as a TUM file with a header comment; stamps as `repr` (exact round trip), positions
+    and quaternions rounded to 1e-9 (``nsim.io.canonical``: the same bytes on every CPU, no ``-0``)."""
     data = np.column_stack(
-        [traj.timestamps_s, traj.positions_xyz, traj.orientations_quat_wxyz[:, [1, 2, 3, 0]]]
+        [traj.timestamps_s, round_decimals(traj.positions_xyz), round_decimals(traj.orientations_quat_wxyz[:, [1, 2, 3, 0]])]
     )
     lines = [TUM_HEADER] + [" ".join(map(repr, row)) for row in data.tolist()]
     path = Path(path)

@@ -100,14 +100,20 @@ class Outputs:
     cache_hit: bool = False
 
 
+def log_digests(inputs: Inputs) -> dict[str, Any]:
+    """The log's files by name and SHA-256 (and the selection's digest): what the action key counts."""
+    from nsim.workspace.store import sha256_path
+
+    files: dict[str, Any] = {"log": [[Path(p).name, sha256_path(Path(p))] for p in inputs.log]}
+    if inputs.selection is not None:
+        files["selection"] = sha256_path(Path(inputs.selection))
+    return files
+
+
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     from importlib import metadata
 
-    from nsim.workspace.store import sha256_path
-
-    files = {"log": [[Path(p).name, sha256_path(Path(p))] for p in inputs.log]}
-    if inputs.selection is not None:
-        files["selection"] = sha256_path(Path(inputs.selection))
+    files = log_digests(inputs)
     extra = {"files": files} if inputs.is_folder() else {"files": files, "rosbags": metadata.version("rosbags")}
     return ctx.store.action_key(STAGE, VERSION, cfg, {}, seed=ctx.seed, extra=extra)
 
@@ -166,12 +172,33 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
                 "trajectory_length_m": round(doc["trajectory"]["length_m"], 3),
                 "duration_s": round(doc["trajectory"]["duration_s"], 3),
             })
-            out.timing.update({"read_index_s": round(t_read, 2), "write_s": round(time.perf_counter() - t1, 2)})
+            out.timing.update({"read_index_s": round(t_read, 2), "write_s": round(time.perf_counter() - t1, 2),
+                               # where the log was read from (outside the id: the same bag at another path on
+                               # another node gives the same artifact), for `nsim verify --rebuild`
+                               "source": {"log": [str(Path(p).resolve()) for p in inputs.log],
+                                          "selection": (str(Path(inputs.selection).resolve())
+                                                        if inputs.selection is not None else None),
+                                          "files": log_digests(inputs)}})
     return Outputs(recording=out.ref)
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    """A recording is made from a log (bag files or a folder) the workspace does not hold: there is
-    nothing to rebuild from."""
-    raise InputError("this recording was imported from a robot log (bag files or a folder), which the workspace "
-                     "does not hold: rerun nsim import-log on it with --force to compare")
+    """Re-import the log the recording was imported from, where it was read (the manifest's ``timing.source``),
+    if it is still there with the same content; the workspace does not hold the log itself."""
+    from nsim.config import from_dict
+
+    source = manifest.get("timing", {}).get("source")
+    if not isinstance(source, dict) or not source.get("log"):
+        raise InputError("this recording was imported from a robot log (bag files or a folder) whose path it does not "
+                         "record: rerun nsim import-log on it with --force to compare")
+    paths = tuple(Path(str(p)) for p in source["log"])
+    selection = Path(str(source["selection"])) if source.get("selection") else None
+    for p in (*paths, *([selection] if selection is not None else [])):
+        if not p.exists():
+            raise InputError(f"{p}: the robot log this recording was imported from is no longer there: rerun nsim "
+                             "import-log on it with --force to compare")
+    inputs = Inputs(log=paths, selection=selection)
+    if log_digests(inputs) != source.get("files"):
+        raise InputError(f"{paths[0]}: the robot log has changed since this recording was imported from it")
+    ctx = dataclasses.replace(ctx, force=True)
+    return run(inputs, from_dict(Config, manifest["config"]), ctx).recording

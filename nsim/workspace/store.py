@@ -65,6 +65,7 @@ from typing import Any
 from nsim.config import canonical_json, to_dict
 from nsim.errors import InputError, WorkspaceError
 from nsim.io import atomic_write_bytes
+from nsim.io.canonical import canonical_floats
 from nsim.workspace.fingerprint import code_fingerprint
 
 log = logging.getLogger(__name__)
@@ -720,7 +721,8 @@ class Store:
                 "seed": seed,
                 "fingerprint": code_fingerprint(),
                 "files": files,
-                "summary": pending.summary,
+                # floats to 10 significant digits, no -0: a summary computed on another CPU gives the same id
+                "summary": canonical_floats(pending.summary),
             }
             art_id = manifest_id(manifest)
             manifest = {"id": art_id, **manifest}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -42,7 +43,8 @@ def _frames(cameras: list[Camera], seed: int = 0) -> list[Frame]:
 def _assert_same(a: TransformsData, b: TransformsData) -> None:
     assert len(a.frames) == len(b.frames)
     for fa, fb in zip(a.frames, b.frames, strict=True):
-        np.testing.assert_array_equal(fa.cam_to_world, fb.cam_to_world)  # exact floats
+        # poses are written rounded to 1e-9 (nsim.io.canonical: the same bytes on every CPU)
+        np.testing.assert_allclose(fa.cam_to_world, fb.cam_to_world, rtol=0, atol=1e-9)
         assert fa.camera == fb.camera
         assert (fa.file_path, fa.depth_file_path, fa.mask_path, fa.timestamp_s, fa.extra) == (
             fb.file_path, fb.depth_file_path, fb.mask_path, fb.timestamp_s, fb.extra)
@@ -50,7 +52,7 @@ def _assert_same(a: TransformsData, b: TransformsData) -> None:
     if a.applied_transform is None:
         assert b.applied_transform is None
     else:
-        np.testing.assert_array_equal(a.applied_transform, b.applied_transform)
+        np.testing.assert_allclose(a.applied_transform, b.applied_transform, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", list(CAMERAS))
@@ -273,3 +275,13 @@ def test_declared_world(extra, declared):
 def test_declared_world_rejects_non_booleans():
     with pytest.raises(InputError, match="t.json: nsim_metric: expected true or false"):
         declared_world("t.json", TransformsData([], extra={"nsim_metric": "yes"}))
+
+
+def test_written_poses_are_canonical(tmp_path):
+    """Poses one last bit apart (as two CPUs compute them) write the same bytes; no -0 in the file."""
+    data = TransformsData(_frames([CAMERAS["pinhole"]] * 3))
+    nudged = TransformsData([dataclasses.replace(f, cam_to_world=np.nextafter(f.cam_to_world, np.inf))
+                             for f in data.frames])
+    a = write_transforms(tmp_path / "a.json", data).read_bytes()
+    b = write_transforms(tmp_path / "b.json", nudged).read_bytes()
+    assert a == b and b"-0.0," not in a and b"-0.0\n" not in a

@@ -15,9 +15,10 @@ def make_traj(n: int, seed: int = 0, t0_s: float = 1305031102.175304) -> Traject
 
 
 def assert_traj_equal(actual: Trajectory, expected: Trajectory) -> None:
+    """Stamps exact; positions and quaternions as written: rounded to 1e-9 (nsim.io.canonical)."""
     np.testing.assert_array_equal(actual.timestamps_s, expected.timestamps_s)
-    np.testing.assert_array_equal(actual.positions_xyz, expected.positions_xyz)
-    np.testing.assert_array_equal(actual.orientations_quat_wxyz, expected.orientations_quat_wxyz)
+    np.testing.assert_allclose(actual.positions_xyz, expected.positions_xyz, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(actual.orientations_quat_wxyz, expected.orientations_quat_wxyz, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("n", [1, 200])
@@ -192,3 +193,14 @@ def test_a_repeated_timestamp_keeps_the_first_pose_and_warns(tmp_path, caplog):
     assert traj.timestamps_s.tolist() == [1.0, 2.0, 3.0]
     assert traj.positions_xyz[:, 0].tolist() == [0.0, 1.0, 2.0]
     assert "1 pose(s) repeat" in caplog.text and "line 3" in caplog.text
+
+
+def test_positions_one_bit_apart_write_the_same_bytes(tmp_path):
+    traj = make_traj(50)
+    nudged = Trajectory(traj.timestamps_s, np.nextafter(traj.positions_xyz, -np.inf),
+                        np.nextafter(traj.orientations_quat_wxyz, np.inf))
+    a = write_tum(tmp_path / "a.txt", traj).read_bytes()
+    b = write_tum(tmp_path / "b.txt", nudged).read_bytes()
+    assert a == b
+    zero = Trajectory(np.array([0.0]), np.array([[-1e-13, 0.0, -0.0]]), np.array([[1.0, -0.0, 0.0, -1e-12]]))
+    assert write_tum(tmp_path / "z.txt", zero).read_text().splitlines()[-1] == "0.0 0.0 0.0 0.0 0.0 0.0 0.0 1.0"

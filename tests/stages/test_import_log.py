@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from nsim.cli import main
 from nsim.crowd.paths import yaw_poses_se3
+from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.io.exr import read_depth_exr, read_points_exr
 from nsim.io.recording_output import inside_trajectory, kept_frames
@@ -166,3 +168,34 @@ def test_capture_robot_log_then_import(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and words in err, (args, err)
     assert not (tmp_path / "run2").exists() and not (tmp_path / "run3").exists()
+
+
+def test_rebuild_reimports_the_log_from_where_it_was_read(imported, tmp_path):
+    """`nsim verify --rebuild` re-imports the recorded log path; the same bag at another path gives the same id;
+    a log that changed since is refused, one line."""
+    import shutil
+
+    from nsim.context import RunContext
+    from nsim.stages import import_log
+
+    ws, art, _, _, path = imported
+    store = Store(ws)
+    manifest = store.get(art.id).manifest
+    assert manifest["timing"]["source"]["log"] == [str(Path(path).resolve())]
+    ctx = RunContext(store=store, device_spec="cpu", seed=manifest["seed"] or 0)
+    assert import_log.rebuild(manifest, ctx) == art.id
+    moved = tmp_path / "elsewhere" / Path(path).name
+    shutil.copytree(path, moved) if Path(path).is_dir() else (moved.parent.mkdir(), shutil.copy(path, moved))
+    other = Store(tmp_path / "ws2")
+    again = import_log.run(import_log.Inputs(log=(moved,)), import_log.Config(), dataclasses.replace(ctx, store=other))
+    assert again.recording == art.id
+    gone = dict(manifest, timing={**manifest["timing"], "source": {**manifest["timing"]["source"],
+                                                                     "log": [str(tmp_path / "gone")]}})
+    with pytest.raises(InputError, match="no longer there"):
+        import_log.rebuild(gone, ctx)
+    changed = dict(manifest, timing={**manifest["timing"], "source": {**manifest["timing"]["source"],
+                                                                        "log": [str(moved)]}})
+    victim = moved if moved.is_file() else sorted(p for p in moved.rglob("*") if p.is_file())[0]
+    victim.write_bytes(victim.read_bytes() + b"\0")
+    with pytest.raises(InputError, match="has changed"):
+        import_log.rebuild(changed, ctx)

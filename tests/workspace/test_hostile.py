@@ -220,13 +220,14 @@ def test_gc_keeps_young_objects_and_leased_ones(store, tmp_path):
     holder = subprocess.Popen([sys.executable, "-c", (
         f"import sys, time, pathlib; sys.path.insert(0, {str(REPO)!r});"
         "from nsim.workspace.store import Store;"
-        f"s = Store({str(store.root)!r}); s.get({young.id!r}); pathlib.Path({str(flag)!r}).write_text('1'); time.sleep(60)"
+        f"s = Store({str(store.root)!r}); s.get({young.id!r}); pathlib.Path({str(flag)!r}).write_text('1'); time.sleep(3600)"
     )])
     try:
-        for _ in range(200):
+        for _ in range(12000):  # up to 10 min for the holder to start on a busy machine; on as soon as it holds
             if flag.exists():
                 break
             time.sleep(0.05)
+        assert flag.exists(), "the holder process never started"
         report = store.gc(grace_s=0)
         assert report.objects == [] and report.kept_leased == 1
     finally:
@@ -346,7 +347,7 @@ def test_a_lookup_during_gc_waits_and_never_sees_an_object_vanish(store, monkeyp
 
     monkeypatch.setattr(Store, "_to_trash", to_trash_with_a_stage_looking)
     report = store.gc(grace_s=0)
-    out, err = seen["proc"].communicate(timeout=60)
+    out, err = seen["proc"].communicate(timeout=900)
     assert seen["blocked"], "the lookup did not wait for gc"
     assert seen["proc"].returncode == 0, err.decode()
     assert out.decode().split() == ["miss"]
@@ -393,18 +394,23 @@ def test_kill_between_object_ref_and_cache_record(store, method, cond):
 
 
 # ------------------------------------------------------------------------------------ one line, early
-def test_tag_destinations_are_checked_before_work(store, run_cli):
+def test_tag_destinations_are_checked_before_work(store, run_cli, monkeypatch):
     art, _ = toy_publish(store, ToyConfig(), ref="capture/x")
+    import nsim.synth.room
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the capture started before its --tag was checked")
+
+    monkeypatch.setattr(nsim.synth.room, "make_room", no_work)
     for name, msg in (("capture", "folder of refs"), ("capture/latest/sub", "exists, so no ref"),
                       ("../evil", "invalid ref name")):
         code, _, err = run_cli("tag", "capture/x", name, workspace=store.root)
         _one_line_error(code, err)
         assert msg in err
         before = sorted(store.all_ids())
-        t0 = time.perf_counter()
         code, _, err = run_cli("capture", "synth", "--preset", "tiny", "--tag", name, workspace=store.root)
         _one_line_error(code, err)
-        assert msg in err and time.perf_counter() - t0 < 2.0
+        assert msg in err
         assert sorted(store.all_ids()) == before
     assert [p.name for p in (store.root / "refs").iterdir() if p.name.startswith(".")] == []
     assert store.resolve("capture/x") == art.id
