@@ -47,11 +47,33 @@ def jsonable(value: Any) -> Any:
     return value
 
 
+def rounded(value: Any) -> Any:
+    """``value`` with every float (in dataclasses, dicts, lists, tuples) to 10 significant digits, no -0
+    (``nsim.io.canonical``): a table computed from the same renders on another CPU, whose numpy sums and
+    SIMD functions differ in the last bits, writes the same bytes (its files, plots and id)."""
+    from nsim.io.canonical import round_float
+
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        fields = {f.name: rounded(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init}
+        return dataclasses.replace(value, **fields)
+    if isinstance(value, dict):
+        return {k: rounded(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(rounded(v) for v in value)
+    if isinstance(value, (float, np.floating)) and not isinstance(value, bool):
+        return round_float(value)
+    return value
+
+
 def write_result(out_dir: Path, table_name: str, renders: tuple[str, ...], ev, result) -> None:
-    """Write ``result`` of the evaluation ``ev`` (``nsim.evaluation.tables.Evaluation``) of ``renders``."""
+    """Write ``result`` of the evaluation ``ev`` (``nsim.evaluation.tables.Evaluation``) of ``renders``; every
+    number rounded first (:func:`rounded`)."""
     from nsim.io.tum import write_tum
     from nsim.metrics import paper_tables as pt
 
+    result = dataclasses.replace(result, table=rounded(result.table), records=rounded(result.records),
+                                 extras=rounded(result.extras), image_records=rounded(result.image_records),
+                                 depth_records=rounded(result.depth_records), details=rounded(result.details))
     table = result.table
     table.write_all(out_dir, table_name)
     (out_dir / "records.json").write_text(json.dumps(

@@ -24,6 +24,7 @@ def write_registration(out_dir: Path, inputs, cfg, plan, records: list[dict], re
                        body_to_world: np.ndarray, poses_path: Path) -> dict[str, Any]:
     """Write the artifact's files (module docstring); returns registration.json's content."""
     from nsim.config import to_dict
+    from nsim.io.canonical import canonical_floats
     from nsim.io.tum import Trajectory, write_tum
 
     np.save(out_dir / "trajectory_world_ns.npy", plan.traj_ns.astype(np.int64), allow_pickle=False)
@@ -74,6 +75,8 @@ def write_registration(out_dir: Path, inputs, cfg, plan, records: list[dict], re
         "frames": frames,
         "options": to_dict(cfg),
     }
+    # numbers to 10 significant digits, no -0 (nsim.io.canonical): the same bytes from another CPU's last bits
+    doc = canonical_floats(doc)
     (out_dir / "registration.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
     write_preview(out_dir / "preview.png", poses_path, plan, records, reg, body_to_world, cfg.preview_max_points)
     return doc

@@ -50,7 +50,8 @@ from nsim.synth.robot_log import RobotLogFaults
 from nsim.synth.room import ROOM_PRESETS
 
 STAGE = "capture"
-VERSION = 2  # 2: video.mp4 in H.264 (was MPEG-4 Part 2); preview.png with labelled frames
+VERSION = 3  # 2: video.mp4 in H.264 (was MPEG-4 Part 2); preview.png with labelled frames
+# 3: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
 CAMERAS = ("pinhole", "fisheye")
 
 

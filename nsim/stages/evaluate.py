@@ -33,7 +33,7 @@ from nsim.errors import InputError
 from nsim.evaluation.config import TABLES, Config, DetectionConfig, SlamConfig
 
 STAGE = "evaluate"
-VERSION = 1
+VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
 
 __all__ = ["STAGE", "TABLES", "VERSION", "Config", "DetectionConfig", "Inputs", "Outputs", "SlamConfig",
            "action_key", "load_table", "rebuild", "resolve_inputs", "run"]

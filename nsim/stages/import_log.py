@@ -47,7 +47,7 @@ from nsim.errors import InputError
 from nsim.io.recording_output import kept_frames, write_recording
 
 STAGE = "import-log"
-VERSION = 1
+VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
 KINDS = ("camera", "depth", "lidar")
 log = logging.getLogger(__name__)
 

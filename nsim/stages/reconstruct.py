@@ -59,7 +59,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STAGE = "reconstruct"
-VERSION = 4
+VERSION = 5  # 5: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -48,7 +48,7 @@ from nsim.sfm.register import DriftModel, RegisterOptions
 from nsim.sfm.registration_output import write_registration
 
 STAGE = "register-log"
-VERSION = 1
+VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
 log = logging.getLogger(__name__)
 
 #: libraries whose version can change the result (the fingerprint has numpy's and pycolmap's)

@@ -56,11 +56,12 @@ from nsim.rendering import render_plan
 from nsim.rendering.render_plan import RenderConfig
 
 STAGE = "render"
-VERSION = 5  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
+VERSION = 6  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
 # 3: ``fill`` (no-return pixels over the training images' mean colour) and ``background``
 # 4: preview/preview.mp4 in H.264 (was MPEG-4 Part 2); contact sheet tiles labelled (nsim.io.labels)
 # 5: the culling tests a pixel by its centre in the bound's own coordinates (whole numbers; it took u + 0.5,
 #    so a person could lose the column or row at the bound's right or bottom edge)
+# 6: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
 
 log = logging.getLogger(__name__)
 

@@ -70,7 +70,7 @@ from nsim.crowd.sweep import SweepSpec
 from nsim.errors import NsimError
 
 STAGE = "simulate"
-VERSION = 3  # 2: run.mp4 in H.264 (was MPEG-4 Part 2), frames under a label strip; 3: HuNavSim metrics
+VERSION = 4  # 2: run.mp4 in H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded (nsim.io.canonical)
 
 @dataclasses.dataclass(frozen=True)
 class Config:
