@@ -154,15 +154,14 @@ class Outputs:
 # Action key: file inputs are digested by content
 
 
+FILE_INPUTS = ("source", "reference", "intrinsics", "import_transforms")
+
+
 def file_digests(inputs: Inputs, import_digest: str | None = None) -> dict[str, str]:
     """Content digests of the file inputs; an import's files (names in the artifact and content) as one."""
     from nsim.workspace.store import sha256_path
 
-    files = {
-        name: sha256_path(Path(p))
-        for name in ("source", "reference", "intrinsics", "import_transforms")
-        if (p := getattr(inputs, name)) is not None
-    }
+    files = {name: sha256_path(Path(p)) for name in FILE_INPUTS if (p := getattr(inputs, name)) is not None}
     if import_digest is not None:
         files["import_files"] = import_digest
     return files
@@ -214,6 +213,9 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
             "camera_height_m": inputs.camera_height_m,
             "metric": inputs.metric,
         }
+        # where the file inputs were read (outside the id: the same files elsewhere give the same artifact)
+        out.timing["source"] = {name: str(Path(p).resolve()) for name in FILE_INPUTS
+                                if (p := getattr(inputs, name)) is not None}
     return Outputs(poses=out.ref)
 
 
@@ -257,15 +259,29 @@ def import_transforms(inputs: Inputs, cfg: Config, ctx: RunContext, plan: Import
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    """Rebuild from the recorded capture; artifacts made from files need those files again."""
+    """Rebuild from the recorded capture and the file inputs where they were read (``timing.source``), while
+    they are there with the content the artifact was made from; an imported transforms.json is not rebuilt."""
     summary = manifest.get("summary", {})
-    if "capture" not in manifest.get("inputs", {}) or summary.get("file_inputs"):
-        raise InputError("this poses artifact was made from files (video, images or a reference), which the "
-                         "workspace does not hold: rerun nsim reconstruct on them with --force to compare")
+    files = summary.get("file_inputs") or {}
+    source = manifest.get("timing", {}).get("source") or {}
+    if "import_files" in files or ("capture" not in manifest.get("inputs", {}) and not source.get("source")):
+        raise InputError("this poses artifact was imported from files the workspace does not hold: rerun nsim "
+                         "reconstruct on them with --force to compare")
+    paths = {name: Path(str(source[name])) for name in files if name in source}
+    if set(paths) != set(files):
+        raise InputError(f"this poses artifact was made from files ({', '.join(sorted(files))}) whose paths it does "
+                         "not record: rerun nsim reconstruct on them with --force to compare")
+    for name, p in paths.items():
+        if not p.exists():
+            raise InputError(f"{p}: the {name} this poses artifact was made from is no longer there: rerun nsim "
+                             "reconstruct on it with --force to compare")
     scale = summary.get("scale_inputs", {})
     kd = scale.get("known_distance")
     cfg = from_dict(Config, manifest["config"])
     ctx = dataclasses.replace(ctx, force=True)
-    inputs = Inputs(capture=manifest["inputs"]["capture"], known_distance=tuple(kd) if kd else None,
-                    camera_height_m=scale.get("camera_height_m"))
+    inputs = Inputs(capture=manifest["inputs"].get("capture"), known_distance=tuple(kd) if kd else None,
+                    camera_height_m=scale.get("camera_height_m"), metric=bool(scale.get("metric")), **paths)
+    if file_digests(inputs) != files:
+        changed = sorted(n for n, d in file_digests(inputs).items() if files.get(n) != d)
+        raise InputError(f"{paths[changed[0]]}: the {changed[0]} has changed since this poses artifact was made from it")
     return run(inputs, cfg, ctx).poses

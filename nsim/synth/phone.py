@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from nsim.config import param
+from nsim.io.canonical import round_decimals
 
 DRIFT_TAG = 0x9E0
 NOISE_TAG = 0x9E1
@@ -125,7 +126,9 @@ def drift_gains(cfg: PhoneConfig, n_frames: int, fps: float, seed: int) -> tuple
     ev, log_r, log_b = (smooth_drift(rng, n_frames, std, sigma) for std in (
         cfg.exposure_drift_std_stops, cfg.white_balance_drift_std_stops, cfg.white_balance_drift_std_stops))
     wb = np.stack([np.exp2(log_r), np.ones(n_frames), np.exp2(log_b)], axis=-1)
-    return np.exp2(ev), wb
+    # to 1e-9 (nsim.io.canonical): numpy's exp2 differs in the last bits between CPUs; the frames and the
+    # transforms.json that records the gains then do not
+    return round_decimals(np.exp2(ev)), round_decimals(wb)
 
 
 def vignetting(width: int, height: int, cx: float, cy: float, corner_gain: float) -> np.ndarray:

@@ -71,6 +71,7 @@ import numpy as np
 from nsim.config import from_dict, param, to_dict
 from nsim.errors import InputError
 from nsim.geometry.transforms import invert_se3, is_rotation, make_se3
+from nsim.io.canonical import canonical_floats, round_decimals
 from nsim.sensors.depth import DepthConfig, apply_depth_model
 from nsim.sensors.rig import CameraSensor, LidarSensor, Rig
 from nsim.synth.phone import PhoneConfig, develop, encode_jpeg, smooth_drift
@@ -217,7 +218,9 @@ def exposure_gains(times_s: np.ndarray, faults: RobotLogFaults, rng: np.random.G
         return np.ones(0)
     step_s = float(np.median(np.diff(times))) if times.size > 1 else faults.exposure_drift_timescale_s
     sigma_frames = faults.exposure_drift_timescale_s / step_s
-    return np.exp2(smooth_drift(rng, times.size, faults.exposure_drift_std_stops, sigma_frames))
+    # to 1e-9 (nsim.io.canonical): numpy's exp2 differs in the last bits between CPUs; the images and the
+    # truth that records the gains then do not
+    return round_decimals(np.exp2(smooth_drift(rng, times.size, faults.exposure_drift_std_stops, sigma_frames)))
 
 
 def jpeg_bytes(image_u8: np.ndarray, quality: int) -> bytes:
@@ -468,7 +471,7 @@ def write_robot_log(
         "room": room_spec.to_dict(),
         "rig": rig.to_dict(),
     }
-    text = json.dumps(truth, indent=1, sort_keys=True) + "\n"
+    text = json.dumps(canonical_floats(truth), indent=1, sort_keys=True) + "\n"  # the same bytes on any CPU
     with atomic_path(truth_file) as tmp:
         tmp.write_text(text)
     return json.loads(text)

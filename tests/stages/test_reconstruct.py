@@ -64,6 +64,14 @@ def test_reconstruct_capture_with_noisy_reference(small_capture, run_cli, tmp_pa
     code, out2, err = run_cli("reconstruct", "capture/s", "--preset", "tiny", "--reference", str(moved),
                               "--force", workspace=store.root)
     assert code == 0 and out2.strip() != ""  # a different file name is recorded in report.json
+    # verify --rebuild reruns it from the reference where it was read, while it is unchanged
+    assert art.manifest["timing"]["source"] == {"reference": str(ref.resolve())}
+    code, out, err = run_cli("verify", "--rebuild", art.id, workspace=store.root)
+    assert code == 0 and out.strip() == f"ok      {art.id[:12]} rebuilt identically", (out, err)
+    ref.write_text(ref.read_text() + "\n")
+    code, out, err = run_cli("verify", "--rebuild", art.id, workspace=store.root)
+    assert code == 0 and out.startswith(f"SKIPPED {art.id[:12]} cannot rebuild: {ref.resolve()}: the reference has "
+                                        "changed"), out
 
 
 def test_bad_inputs_exit_2(small_capture, run_cli, tmp_path):

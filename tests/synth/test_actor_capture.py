@@ -87,7 +87,8 @@ def test_files_and_masks(capture):
 def test_poses_round_trip_through_human_data(capture):
     data = HumanData.load(capture.out_dir)
     assert data.num_frames == TINY.n_frames
-    np.testing.assert_allclose(data.joint_transforms(), capture.joint_transforms, atol=1e-9)
+    # poses.json holds the poses to 1e-9 (nsim.io.canonical); composed down the skeleton, a few 1e-9
+    np.testing.assert_allclose(data.joint_transforms(), capture.joint_transforms, atol=2e-8)
     np.testing.assert_allclose(data.cam_to_world(), capture.cam_to_world, atol=1e-9)
     np.testing.assert_allclose(data.poses.timestamps_s, np.arange(TINY.n_frames) / TINY.fps)
     assert data.poses.height_m == TINY.actor_height_m and data.poses.meta["actor_seed"] == 4

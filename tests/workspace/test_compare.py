@@ -205,7 +205,31 @@ def test_csv_and_yaml_compare_as_numbers(tmp_path):
     deltas = {d.file: d for d in _compare(tmp_path, "scene-checkpoint").deltas}
     assert deltas["scenes.csv"].value == pytest.approx(0.5) and "rows[0].PSNR" in deltas["scenes.csv"].note
     assert deltas["scenes.csv"].within  # 1e-3 + 5 % of 25.5
+    assert deltas["map.yaml"].within and "not judged: resolution" in deltas["map.yaml"].note  # not a score
+    deltas = {d.file: d for d in _compare(tmp_path, "capture").deltas}  # every number judged
     assert deltas["map.yaml"].within and deltas["map.yaml"].value == pytest.approx(1e-8)
+
+
+def test_a_retrained_model_is_judged_by_what_it_scores(tmp_path):
+    """scene-checkpoint: eval.json's scores decide (within 5 %); its fitting diagnostics and the loss curve are
+    reported, not judged; the map's polygons (traced from obstacle_cells.npy) are not compared."""
+    a, b = _pair(tmp_path, "eval.json")
+    a.write_text(json.dumps({"views": [{"psnr": 30.0, "appearance_fit_shift": 3.6}]}))
+    b.write_text(json.dumps({"views": [{"psnr": 29.5, "appearance_fit_shift": 2.7}]}))
+    a, b = _pair(tmp_path, "obstacles.json")
+    a.write_text(json.dumps({"polygons": [[[0, 0], [1, 0], [1, 1]]]}))
+    b.write_text(json.dumps({"polygons": [[[0, 0], [1, 0], [1, 1], [0, 1]]]}))
+    deltas = {d.file: d for d in _compare(tmp_path, "scene-checkpoint").deltas}
+    d = deltas["eval.json"]
+    assert d.within and d.value == pytest.approx(0.5) and "views[0].psnr" in d.note
+    assert "not judged: views[0].appearance_fit_shift: 3.6 -> 2.7" in d.note
+    assert deltas["obstacles.json"].within and deltas["obstacles.json"].note == "derived file, not compared"
+    (tmp_path / "new" / "eval.json").write_text(json.dumps({"views": [{"psnr": 25.0, "appearance_fit_shift": 3.6}]}))
+    d = {d.file: d for d in _compare(tmp_path, "scene-checkpoint").deltas}["eval.json"]
+    assert not d.within and d.value == pytest.approx(5.0)
+    # the same file in a kind without scores to pick: every number decides
+    d = {d.file: d for d in _compare(tmp_path, "evaluation").deltas}["eval.json"]
+    assert not d.within
 
 
 # ------------------------------------------------------------------------------- poses, points, arrays
@@ -266,7 +290,7 @@ def test_npy_and_npz_arrays(tmp_path):
     cells = np.zeros((10, 10), np.int8)
     np.savez(a, cells=cells, stamps_ns=np.arange(3))
     np.savez(b, cells=np.where(np.eye(10, dtype=bool), 100, 0).astype(np.int8), stamps_ns=np.arange(3))
-    deltas = {d.file: d for d in _compare(tmp_path, "baked-scene").deltas}
+    deltas = {d.file: d for d in _compare(tmp_path, "export").deltas}
     d = deltas["weights.npy"]
     assert d.measure == "max_rel" and d.value == pytest.approx(0.02 / 4.0) and d.within  # <= 1 %
     d = deltas["cells.npz"]
@@ -427,6 +451,26 @@ def test_verify_rebuild_that_differs(run_cli, monkeypatch, tmp_path, step, code_
     assert entry["within_tolerance"] is (code_expected == 0)
     (f,) = entry["files"]
     assert f["file"] == "images/frame_00001.png" and f["measure"] == "psnr_db" and f["tolerance"] == 40.0
+
+
+def test_verify_rebuild_of_what_cannot_be_rebuilt_is_skipped_with_the_reason(run_cli, monkeypatch):
+    """An artifact made from files the workspace does not hold is SKIPPED with the reason; the others still run."""
+    import nsim.stages.capture
+    from nsim.errors import InputError
+
+    code, out, err = run_cli(*CAPTURE)
+    assert code == 0, err
+    art_id = out.strip()
+
+    def cannot(manifest, ctx):
+        raise InputError("made from a video the workspace does not hold")
+
+    monkeypatch.setattr(nsim.stages.capture, "rebuild", cannot)
+    code, out, err = run_cli("verify", "--rebuild", art_id[:10])
+    assert code == 0 and out.strip() == f"SKIPPED {art_id[:12]} cannot rebuild: made from a video the workspace does not hold"
+    code, out, err = run_cli("verify", "--rebuild", "--json", "-", art_id[:10])
+    (entry,) = json.loads(out)["artifacts"]
+    assert code == 0 and entry["rebuilt"] is None and entry["error"].startswith("cannot rebuild: made from a video")
 
 
 def test_yaml_alias_bomb_and_deep_json_are_notes(tmp_path, monkeypatch):
