@@ -45,6 +45,7 @@ import numpy as np
 
 from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
+from nsim.io.canonical import round_decimals
 from nsim.synth.phone import PhoneConfig
 from nsim.synth.robot_log import RobotLogFaults
 from nsim.synth.room import ROOM_PRESETS
@@ -158,7 +159,9 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     spec = make_room(cfg.room, cfg.room_seed)
     camera = make_camera(cfg)
-    cam_to_world = handheld_path(spec, cfg.n_frames, seed=ctx.seed, cfg=path_config(cfg))  # (N, 4, 4) OpenCV axes
+    # (N, 4, 4) OpenCV axes, rounded to 1e-9 before anything is rendered from them: the frames, depth and the
+    # transforms.json written (nsim.io.canonical) all hold the same poses, whatever the CPU's last bits
+    cam_to_world = round_decimals(handheld_path(spec, cfg.n_frames, seed=ctx.seed, cfg=path_config(cfg)))
     times_s = timestamps_s(cfg.n_frames, cfg.fps)
     oracle = RoomOracle(spec)
     plan = None

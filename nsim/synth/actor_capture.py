@@ -49,6 +49,7 @@ from scipy.spatial.transform import Rotation
 from nsim.geometry.transforms import look_at
 from nsim.human.motion import LocomotionLoop, MotionClip
 from nsim.human.skeleton import heading_yaw
+from nsim.io.canonical import round_decimals
 from nsim.synth.room import RoomSpec, clearance_xy_m
 
 log = logging.getLogger(__name__)
@@ -359,7 +360,7 @@ def follow_camera(spec: RoomSpec, focus_xyz_m: np.ndarray, heading_rad: np.ndarr
                            _wobble(rng, t_s, 2.5, 0.1, 1.2),  # about camera +y (yaw)
                            _wobble(rng, t_s, 1.5, 0.1, 1.0)], axis=-1)  # about +z (roll)
     cam_to_world[:, :3, :3] = cam_to_world[:, :3, :3] @ Rotation.from_rotvec(np.radians(wobble_deg)).as_matrix()
-    return cam_to_world
+    return round_decimals(cam_to_world)  # to 1e-9: what is rendered is what transforms.json holds, on any CPU
 
 
 # ---------------------------------------------------------------------------------------------- rendering

@@ -27,7 +27,9 @@ def test_bounded_monotone_and_continuous(order):
     radii = torch.tensor([0.5, 0.999999, 1.0, 1.000001, 2.0, 10.0, 1e3, 1e8])
     y = contract(direction[:, None, :] * radii[None, :, None], order)
     ny = torch.linalg.vector_norm(y, ord=order, dim=-1)
-    assert (ny <= 2.0).all() and (ny[:, :-1] < 2.0).all()  # 2 - 1e-8 rounds to 2 in float32
+    # 2 - 1e-8 rounds to 2 in float32, and the float32 norm of that point may come out a few ulps above 2 (by how
+    # much depends on the CPU's kernels: ATEN_CPU_CAPABILITY=default gave 2.0000002)
+    assert (ny <= 2.0 * (1 + 4 * torch.finfo(torch.float32).eps)).all() and (ny[:, :-1] < 2.0).all()
     assert (ny[:, 1:] >= ny[:, :-1]).all()  # radially monotone
     assert_close(ny[:, 1], ny[:, 3], atol=1e-5, rtol=0)  # continuous across the unit sphere
     assert_close(ny[:, 4], torch.full_like(ny[:, 4], 1.5))  # 2 - 1/2
