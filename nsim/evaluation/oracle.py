@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from collections.abc import Iterator
 from typing import Any
 
@@ -29,6 +30,8 @@ import numpy as np
 from nsim.errors import InputError
 from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, uint8_rgb
 from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence, lidar_rows
+
+log = logging.getLogger(__name__)
 
 TRAJECTORY_HOW = "nsim render --trajectory RUN --rig configs/robots/spot.yaml"
 
@@ -52,6 +55,7 @@ class OracleTruth(GroundTruth):
         super().__init__(ev)
         self._oracles: dict[str, Any] = {}
         self._too_near_total = 0  # depth_frames: simulated px counted as the minimum range (for the notes)
+        self._no_return: dict[str, tuple[int, int, list[float]]] = {}  # depth_frames: camera -> no-return px, px, depths
 
     # -- checks
     def require_room(self, r: RenderData) -> str:
@@ -219,6 +223,8 @@ class OracleTruth(GroundTruth):
 
     def depth_frames(self) -> Iterator[SensorFrames]:
         self._too_near_total = 0
+        self._no_return = {}
+        lo, hi = self.cfg.depth_min_m, self.cfg.depth_max_m
         for group in self._spot_frames("depth"):
             s = group.render.rig()[group.sensor]
             rows = []
@@ -226,10 +232,18 @@ class OracleTruth(GroundTruth):
                 pred = p.sim
                 bad = np.isnan(pred) & np.isfinite(p.real)
                 n_near = int(bad.sum())
+                # no return (+inf: the scene model is empty along the ray) where the truth has a surface: scored as
+                # the maximum depth; a hole in the scene, said in the notes per camera (issue 42's `left` camera)
+                hole = np.isposinf(pred) & np.isfinite(p.real) & (p.real >= lo) & (p.real <= hi)
+                n_hole = int(hole.sum())
+                if n_hole:
+                    count, px, depths = self._no_return.get(group.sensor, (0, 0, []))
+                    self._no_return[group.sensor] = (count + n_hole, px + int(np.isfinite(p.real).sum()),
+                                                     [*depths, float(np.median(p.real[hole]))])
                 if n_near and s.depth.min_m > 0.0:
                     pred = np.where(bad, np.float32(s.depth.min_m), pred)  # the sensor's "too near" reading
                     self._too_near_total += n_near
-                rows.append(FramePair(p.index, pred, p.real, p.mask, {"too_near_px": n_near,
+                rows.append(FramePair(p.index, pred, p.real, p.mask, {"too_near_px": n_near, "no_return_px": n_hole,
                                                                       "depth_kind": s.depth.kind}))
             yield dataclasses.replace(group, frames=rows)
 
@@ -346,10 +360,19 @@ class OracleTruth(GroundTruth):
                     "and colour model, 8-bit"]
         if table == "spot-depth":
             total = self._too_near_total
+            holes = sorted(self._no_return.items(), key=lambda kv: -kv[1][0])
+            per = ", ".join(f"{name} {n} px at a median {float(np.median(d)):.2f} m" for name, (n, _, d) in holes)
+            for name, (n, px, d) in holes:
+                if n > 0.002 * px:
+                    log.warning("spot-depth: camera %s: %d px (%.2f %%) have no return where the ground truth has a "
+                                "surface (median %.2f m); they count as %g m: the scene model has a hole there",
+                                name, n, 100.0 * n / px, float(np.median(d)), self.cfg.depth_max_m)
             return ["ground truth: the test room's oracle depth (the camera's depth kind, z-depth for Spot) at each "
                     "frame's camera pose, inside the camera's valid range, without noise or quantisation",
                     "simulated readings reported invalid (NaN: nearer than the camera's minimum range) where the "
-                    f"ground truth is valid count as that minimum ({total} px)"]
+                    f"ground truth is valid count as that minimum ({total} px)",
+                    "simulated readings with no return (+inf: the scene model is empty along the ray) where the "
+                    f"ground truth has a surface count as the maximum depth ({per or 'none'})"]
         if table == "lidar":
             return ["ground truth: the test room's oracle scan of each LiDAR (the rig's beams, exact ranges, no noise "
                     "or dropout) from the body pose of robot.tum and the rig's extrinsic, with the render's people"]

@@ -33,7 +33,7 @@ from nsim.errors import InputError
 from nsim.evaluation.config import TABLES, Config, DetectionConfig, SlamConfig
 
 STAGE = "evaluate"
-VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
+VERSION = 3  # 2: numbers rounded (nsim.io.canonical); 3: spot-depth notes no-return px per camera
 
 __all__ = ["STAGE", "TABLES", "VERSION", "Config", "DetectionConfig", "Inputs", "Outputs", "SlamConfig",
            "action_key", "load_table", "rebuild", "resolve_inputs", "run"]

@@ -191,6 +191,41 @@ def test_spot_render_equal_to_the_oracle_is_exact(world):
         assert cell(row["AbsRel"]) < 1e-6 and cell(row["δ<1.05"]) == 1.0
 
 
+def test_a_hole_in_the_scene_is_named_per_camera(world):
+    """Issue 42's `left` camera: a scene model with a hole (no return, +inf, where the truth has a surface) in one
+    camera's view raises that camera's AbsRel alone; the table's notes and records name the camera and the pixels."""
+    from nsim.evaluation.oracle import sensor_depth_gt
+    from nsim.io.exr import write_depth_exr
+    from nsim.io.transforms_json import read_transforms
+    from nsim.sensors.rig import Rig
+    from nsim.synth.oracle import RoomOracle
+    from nsim.synth.room import RoomSpec
+
+    cap = world.get(world.resolve("capture/t"))
+    oracle = RoomOracle(RoomSpec.from_dict(json.loads(cap.file("room.json").read_text())["spec"]))
+    holed = "left"
+
+    def holed_frames(d: Path) -> None:
+        rig = Rig.from_resolved(json.loads((d / "rig.json").read_text()))
+        for s in rig.cameras:
+            for f in read_transforms(d / "cameras" / f"{s.name}.json").frames:
+                depth = sensor_depth_gt(s, oracle.render_gt(f.camera, f.cam_to_world, 1).depth_range).astype(np.float32)
+                if s.name == holed:
+                    h, w = depth.shape
+                    depth[h // 2 - 2: h // 2 + 2, w // 2 - 2: w // 2 + 2] = np.inf
+                write_depth_exr(d / f.file_path.replace("/rgb/", "/depth/").replace(".png", ".exr"), depth)
+
+    ref = variant(world, "render/spot", "holed", holed_frames)
+    assert evaluate(world, "spot-depth", ref) == 0
+    art, table, _ = latest(world)
+    rows = {r["Camera"]: cell(r["AbsRel"]) for r in table["rows"] if r.get("Camera") in CAMERAS}
+    assert rows[holed] > 1e-3 and all(v < 1e-6 for k, v in rows.items() if k != holed), rows
+    frames = json.loads(art.file("records.json").read_text())["frames"]  # per-frame extras
+    n = sum(1 for r in frames if r.get("no_return_px"))
+    assert n > 0 and all(r["no_return_px"] == 16 for r in frames if r.get("no_return_px")), frames[:3]
+    assert any(f"({holed} {16 * n} px at a median" in note for note in table["notes"]), table["notes"]
+
+
 def test_lidar_against_the_oracle(world):
     """The LiDAR table against the oracle: a render's sweeps score finite; the oracle's own exact sweeps written as
     the render's score 0 m with every beam agreeing; the same sweeps 10 cm long score a 10 cm median and bias."""
