@@ -236,10 +236,9 @@ class OracleTruth(GroundTruth):
                 # the maximum depth; a hole in the scene, said in the notes per camera (issue 42's `left` camera)
                 hole = np.isposinf(pred) & np.isfinite(p.real) & (p.real >= lo) & (p.real <= hi)
                 n_hole = int(hole.sum())
-                if n_hole:
-                    count, px, depths = self._no_return.get(group.sensor, (0, 0, []))
-                    self._no_return[group.sensor] = (count + n_hole, px + int(np.isfinite(p.real).sum()),
-                                                     [*depths, float(np.median(p.real[hole]))])
+                count, px, depths = self._no_return.get(group.sensor, (0, 0, []))
+                self._no_return[group.sensor] = (count + n_hole, px + int(np.isfinite(p.real).sum()),
+                                                 [*depths, *([float(np.median(p.real[hole]))] if n_hole else [])])
                 if n_near and s.depth.min_m > 0.0:
                     pred = np.where(bad, np.float32(s.depth.min_m), pred)  # the sensor's "too near" reading
                     self._too_near_total += n_near
@@ -360,7 +359,7 @@ class OracleTruth(GroundTruth):
                     "and colour model, 8-bit"]
         if table == "spot-depth":
             total = self._too_near_total
-            holes = sorted(self._no_return.items(), key=lambda kv: -kv[1][0])
+            holes = sorted(((k, v) for k, v in self._no_return.items() if v[0]), key=lambda kv: -kv[1][0])
             per = ", ".join(f"{name} {n} px at a median {float(np.median(d)):.2f} m" for name, (n, _, d) in holes)
             for name, (n, px, d) in holes:
                 if n > 0.002 * px:
