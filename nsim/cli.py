@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -215,6 +216,10 @@ def verify_cmd(click_ctx: click.Context, specs: tuple[str, ...], rebuild: bool, 
     its kind (nsim/workspace/compare.py) and fails naming the file and the figure; an artifact made from
     files the workspace does not hold (and no longer finds) is listed as SKIPPED, with the reason.
     """
+    if json_path not in (None, "-"):  # before any work: a report with nowhere to go is an error now, not at the end
+        folder = Path(json_path).resolve().parent
+        if not folder.is_dir() or not os.access(folder, os.W_OK):
+            raise NsimError(f"--json {json_path}: {folder} is not a folder this user can write to")
     ctx = _inspect(click_ctx)
     store = ctx.store
     ids = [store.resolve(s) for s in specs] if specs else sorted(store.all_ids() + store.damaged_ids())

@@ -491,3 +491,9 @@ def test_yaml_alias_bomb_and_deep_json_are_notes(tmp_path, monkeypatch):
     deltas = {d.file: d for d in _compare(tmp_path, "capture").deltas}
     assert not deltas["map.yaml"].within and "more than 10000 values" in deltas["map.yaml"].note
     assert not deltas["deep.json"].within and "nested deeper than" in deltas["deep.json"].note
+
+
+def test_verify_json_to_a_missing_folder_is_refused_before_any_work(run_cli, tmp_path):
+    code, out, err = run_cli("verify", "--json", str(tmp_path / "no" / "such" / "report.json"))
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert "is not a folder this user can write to" in err
