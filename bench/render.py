@@ -567,9 +567,9 @@ def _rays_per_s(ctx: RunContext, scene_id: str, baked_id: str, traj: str, args) 
 
     from nsim.rendering import OccupancyGrid, load_model
     from nsim.rendering.baked import BakedScene, render_baked
-    from nsim.rendering.rays import Rays, make_rays
     from nsim.rendering.renderer import render_rays
     from nsim.sensors.rig import Rig
+    from nsim.volume.rays import Rays, make_rays
 
     store = ctx.store
     scene = store.get(scene_id)

@@ -8,7 +8,7 @@ scene checkpoint and publishes). Everything stays in the scene's world frame: me
     Rays of the training cameras -> the surface each ray ends on (its median or expected depth
     where its opacity is high), the rendered colour there and the normal ``-grad sigma / |grad sigma|``
     (autograd of the density).
-``nsim.export.mesh``
+``nsim.export.extract`` with ``nsim.volume.density_mesh``
     The density on a lattice of nodes -> marching cubes at a density level -> faces kept where
     the cameras looked (optional) -> small components dropped -> vertex colours from short probe
     rays looking into the surface along its normal.

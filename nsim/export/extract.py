@@ -17,9 +17,9 @@ import torch
 from torch import Tensor
 
 from nsim.config import param
-from nsim.export import mesh as meshing
 from nsim.export import points as pts
 from nsim.progress import progress_bar
+from nsim.volume import density_mesh as meshing
 
 log = logging.getLogger(__name__)
 
@@ -218,7 +218,7 @@ def surface_level(model, xyz: np.ndarray, chunk: int = 1 << 16) -> float:
 
 def mesh_from_density(model, grid, rays: ViewRays, cfg: MeshConfig, level: float, device,
                       progress: bool = False) -> Mesh:
-    """Marching cubes of the model's density at ``level`` (1/m; see ``nsim.export.mesh``), cropped, cleaned, coloured.
+    """Marching cubes of the model's density at ``level`` (1/m; see ``nsim.volume.density_mesh``), cropped, cleaned, coloured.
 
     grid: the scene's ``OccupancyGrid`` (or None); rays: the cast training views (the ``seen``
     region and ``crop_to_seen``). With ``crop_to_seen`` the density is only evaluated near seen cells.

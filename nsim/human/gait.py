@@ -1,11 +1,11 @@
 """Procedural gait: walking at any speed, standing idle and turning, as ``MotionClip``s of the nsim body.
 
 Speed relations (one place, shared with the crowd simulator): the stride (two steps) at speed
-``v`` is ``nsim.crowd.gait.stride_length_m(v, height)`` (``2 * 0.63 m * sqrt(v / 1 m/s)`` at
+``v`` is ``nsim.human.gait_phase.stride_length_m(v, height)`` (``2 * 0.63 m * sqrt(v / 1 m/s)`` at
 1.75 m, scaled by height), so the cadence is ``v / stride`` strides per second: 85, 109 and
 128 steps/min at 0.8, 1.3 and 1.8 m/s for a 1.75 m adult, within the measured ranges (Grieve
 & Gear 1966). A generated walk therefore has exactly the stride length the crowd simulator
-uses for its gait phase, and a phase from ``nsim.crowd.gait.gait_phase`` plays it without foot
+uses for its gait phase, and a phase from ``nsim.human.gait_phase.gait_phase`` plays it without foot
 sliding. The stance phase lasts ``duty_factor(v)`` of the cycle (about 62 % at 1.3 m/s).
 
 The walk is built from its feet, so planted feet never slide:
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nsim.crowd.gait import stride_length_m
+from nsim.human.gait_phase import stride_length_m
 from nsim.human.motion import LocomotionLoop, MotionClip
 from nsim.human.skeleton import (
     REFERENCE_HEIGHT_M,

@@ -52,7 +52,7 @@ entry into and exit from the posed body box (world axis-aligned, joints and end 
 ``box_padding_m``); rays that miss it get empty intervals (``t_start == t_end``, density 0).
 The samples are ``RaySamples`` like the scene model's, so ``render_merged`` volume-renders human
 and scene samples along the same rays together, in depth order, with the renderer's compositing
-(``nsim.rendering.compositing``).
+(``nsim.volume.compositing``).
 """
 
 from __future__ import annotations
@@ -71,10 +71,11 @@ from nsim.config import param
 from nsim.fields.hash_encoding import HashEncoding
 from nsim.fields.mlp import MLP
 from nsim.fields.scene_field import trunc_exp
+from nsim.geometry.cameras import dirs_to_world
 from nsim.human.skeleton import Skeleton, default_padding_m, pose_aabb
-from nsim.rendering.compositing import composite_sets, merge_samples, set_weights
-from nsim.rendering.model import RaySamples
-from nsim.rendering.rays import camera_dirs, rays_from_pixels
+from nsim.volume.compositing import composite_sets, merge_samples, set_weights
+from nsim.volume.rays import camera_dirs
+from nsim.volume.samples import RaySamples
 
 FIELD_TYPES = ("hash", "mlp")
 SKINNING_MODES = ("mixture", "blend")
@@ -265,7 +266,7 @@ class MergedRender:
     """Per-ray result of rendering several sample sets together (R rays).
 
     rgb: (R, 3); accumulation: (R,) total opacity; depth: (R,) expected range (metres along the
-    unit ray, ``nsim.rendering.volume.expected_depth``); alpha: (K, R) each input set's visible
+    unit ray, ``nsim.volume.quadrature.expected_depth``); alpha: (K, R) each input set's visible
     opacity (its share of the weights), e.g. the person mask of a human set.
     """
 
@@ -277,7 +278,7 @@ class MergedRender:
 
 def render_merged(*sets: RaySamples, background_rgb: Tensor | None = None) -> MergedRender:
     """Volume-render sample sets together in depth order, over ``background_rgb`` ((3,) or (R, 3)):
-    ``nsim.rendering.compositing.composite_sets``, the renderer's compositing, with each set's opacity."""
+    ``nsim.volume.compositing.composite_sets``, the renderer's compositing, with each set's opacity."""
     out, source = composite_sets(*sets, background_rgb=background_rgb)
     return MergedRender(out.rgb, out.accumulation, out.depth, set_weights(out.weights, source, len(sets)))
 
@@ -523,7 +524,7 @@ class HumanModel(nn.Module):
         h, w = camera.height, camera.width
         dirs_cam = camera_dirs(camera, dev).reshape(-1, 3)
         c2w = torch.as_tensor(np.asarray(cam_to_world), dtype=torch.float32, device=dev).expand(h * w, 4, 4)
-        origins, dirs = rays_from_pixels(dirs_cam, c2w)
+        origins, dirs = dirs_to_world(dirs_cam, c2w)
         bg = torch.as_tensor(np.asarray(background_rgb, dtype=np.float32), device=dev)
         bg = bg.reshape(-1, 3).expand(h * w, 3) if bg.numel() == 3 else bg.reshape(h * w, 3)
         T = self.as_transforms(joint_transforms)

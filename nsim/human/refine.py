@@ -30,12 +30,12 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nsim.rendering.rays import se3_exp
+from nsim.volume.rays import se3_exp
 
 
 def axis_angle_to_matrix(v: Tensor) -> Tensor:
     """Rotation matrices ``(..., 3, 3)`` of axis-angle vectors ``(..., 3)`` (radians), exact with its gradient
-    at 0: the rotation part of ``nsim.rendering.rays.se3_exp`` (one Rodrigues formula in nsim)."""
+    at 0: the rotation part of ``nsim.volume.rays.se3_exp`` (one Rodrigues formula in nsim)."""
     return se3_exp(torch.cat([torch.zeros_like(v), v], dim=-1))[..., :3, :3]
 
 

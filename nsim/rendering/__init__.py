@@ -1,4 +1,6 @@
-"""Rays, samplers, volume rendering, occupancy grids, the scene model and the rendering API.
+"""Samplers, occupancy grids, the scene model, baked surfaces and the rendering API.
+
+Rays, samples, volume quadrature and compositing live one layer below, in ``nsim.volume``.
 
 For later stages::
 
@@ -12,10 +14,8 @@ import importlib
 
 # name -> submodule; imported on first use, so that torch-free parts (engine, culling) stay light
 _EXPORTS = {
-    "RaySamples": "model", "RenderOutput": "model", "SamplerConfig": "model", "SceneModel": "model",
-    "composite": "compositing", "load_model": "model", "save_model": "model",
+    "SamplerConfig": "model", "SceneModel": "model", "load_model": "model", "save_model": "model",
     "ObstacleMap": "occupancy", "OccupancyGrid": "occupancy", "obstacle_map": "occupancy",
-    "PoseRefinement": "rays", "Rays": "rays", "make_rays": "rays", "se3_exp": "rays",
     "MarchConfig": "renderer", "RenderedView": "renderer", "camera_rays": "renderer", "march": "renderer",
     "render_camera": "renderer", "render_lidar": "renderer", "render_rays": "renderer",
 }
@@ -31,22 +31,15 @@ __all__ = [
     "MarchConfig",
     "ObstacleMap",
     "OccupancyGrid",
-    "PoseRefinement",
-    "RaySamples",
-    "Rays",
-    "RenderOutput",
     "RenderedView",
     "SamplerConfig",
     "SceneModel",
     "camera_rays",
-    "composite",
     "load_model",
-    "make_rays",
     "march",
     "obstacle_map",
     "render_camera",
     "render_lidar",
     "render_rays",
     "save_model",
-    "se3_exp",
 ]

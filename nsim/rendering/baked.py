@@ -36,7 +36,7 @@ Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     trilinear density of its brick. Blocks of ``block_cells`` coarse steps are marched for the
     rays still alive; a ray stops once its transmittance is below ``stop_transmittance`` and
     only the samples before that point are kept (early termination, as the NeRF's grid
-    sampler). The kept samples are volume-rendered with ``nsim.rendering.volume`` exactly as
+    sampler). The kept samples are volume-rendered with ``nsim.volume.quadrature`` exactly as
     ``SceneModel.render_grid`` does (padded ``(R, S)`` samples: weights, normalised expected
     depth, median depth, accumulation, the background). Colour is decoded only for samples
     whose weight reaches ``color_skip_weight / n`` (``n`` the ray's kept samples): the skipped
@@ -88,10 +88,11 @@ from nsim.config import param
 from nsim.errors import ConfigError, InputError
 from nsim.fields.encodings import spherical_harmonics
 from nsim.fields.mlp import MLP
-from nsim.rendering import volume
-from nsim.rendering.model import BACKGROUNDS, RaySamples, RenderOutput
-from nsim.rendering.rays import Rays
+from nsim.rendering.model import BACKGROUNDS
 from nsim.rendering.surface import BakedSurface, SurfaceTexture, render_surface
+from nsim.volume import quadrature
+from nsim.volume.rays import Rays
+from nsim.volume.samples import RaySamples, RenderOutput
 
 log = logging.getLogger(__name__)
 
@@ -919,7 +920,7 @@ def _march(baked: BakedScene, rays: Rays) -> tuple[Tensor, ...]:
 def _composite(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, sigma_p: Tensor, rgb_p: Tensor,
                counts: Tensor, return_samples: bool, weights: Tensor) -> RenderOutput:
     """Volume rendering of padded ``(R, S)`` samples (``counts (R,)`` kept, the rest empty at the far end) with
-    their ``weights`` (``volume.render_weights``) as ``SceneModel.render_grid`` does it: the background
+    their ``weights`` (``quadrature.render_weights``) as ``SceneModel.render_grid`` does it: the background
     (``last_sample``: each ray's last kept sample), normalised expected depth, median depth, accumulation."""
     n = len(rays)
     device = rays.origins.device
@@ -930,10 +931,10 @@ def _composite(baked: BakedScene, rays: Rays, t0_p: Tensor, t1_p: Tensor, sigma_
         bg = torch.where((counts > 0)[:, None], last, const)
     else:
         bg = const
-    out_rgb = volume.accumulate(weights, rgb_p) + (1.0 - acc)[:, None] * bg
+    out_rgb = quadrature.accumulate(weights, rgb_p) + (1.0 - acc)[:, None] * bg
     mid_p = 0.5 * (t0_p + t1_p)
-    depth = torch.where(acc > volume.EPS, volume.expected_depth(weights, mid_p, acc), rays.far)
-    return RenderOutput(rgb=out_rgb, depth=depth, depth_median=volume.median_depth(weights, mid_p), accumulation=acc,
+    depth = torch.where(acc > quadrature.EPS, quadrature.expected_depth(weights, mid_p, acc), rays.far)
+    return RenderOutput(rgb=out_rgb, depth=depth, depth_median=quadrature.median_depth(weights, mid_p), accumulation=acc,
                         weights=weights, samples=RaySamples(t0_p, t1_p, sigma_p, rgb_p) if return_samples else None,
                         background=bg)
 
@@ -942,7 +943,7 @@ def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = 
     """``field_samples = m``: the scene field volume-rendered by itself in a window around each ray's baked median
     depth ``centre (R,)``: ``m`` equal bins over ``centre +- field_window_voxels`` voxels (clipped to the ray), the
     field's density at their midpoints (``m`` field queries; the colour head only where the weight is not
-    negligible, ``color_skip_weight``), weights as ``volume.render_weights``.
+    negligible, ``color_skip_weight``), weights as ``quadrature.render_weights``.
     Returns the window's colour normalised by its weight ``(R, 3)`` (``colour=False``: zeros, no colour head),
     its expected and median depth ``(R,)`` and its weight ``(R,)`` (how much of the surface the window holds)."""
     m = baked.field_samples
@@ -954,11 +955,11 @@ def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = 
     mid = 0.5 * (t0 + t1)
     x = rays.origins[:, None, :] + rays.dirs[:, None, :] * mid[..., None]
     sigma, geo = baked.field.density(x.reshape(-1, 3))
-    w, _ = volume.render_weights(sigma.float().view(-1, m), t1 - t0)
+    w, _ = quadrature.render_weights(sigma.float().view(-1, m), t1 - t0)
     acc = w.sum(-1)
     # colour where a bin's weight reaches color_skip_weight / m of the window's (the skipped ones change the
     # normalised colour by at most color_skip_weight), and the middle bin of a clear window (its colour then)
-    clear = acc <= volume.EPS
+    clear = acc <= quadrature.EPS
     need = w >= (baked.color_skip_weight / m) * acc[:, None]
     need[:, m // 2] |= clear
     need &= colour
@@ -966,9 +967,9 @@ def _field_window(baked: BakedScene, rays: Rays, centre: Tensor, colour: bool = 
     rgb = torch.zeros(len(centre) * m, 3, device=centre.device)
     rgb[idx] = baked.decoder(geo[idx].float(), rays.dirs[idx // m])
     rgb = rgb.view(-1, m, 3)
-    colour = volume.accumulate(w, rgb) / acc.clamp(min=volume.EPS)[:, None]
+    colour = quadrature.accumulate(w, rgb) / acc.clamp(min=quadrature.EPS)[:, None]
     colour = torch.where(clear[:, None], rgb[:, m // 2], colour)
-    return colour, volume.expected_depth(w, mid, acc), volume.median_depth(w, mid), acc
+    return colour, quadrature.expected_depth(w, mid, acc), quadrature.median_depth(w, mid), acc
 
 
 @torch.no_grad()
@@ -998,16 +999,16 @@ def render_chunk(baked: BakedScene, rays: Rays, return_samples: bool = False, co
     t0_p = far.clone().index_put((ray, slot), t0)
     t1_p = far.clone().index_put((ray, slot), t1)
     sigma_p = torch.zeros(n, s_pad, device=device).index_put((ray, slot), sigma)
-    weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
+    weights, _ = quadrature.render_weights(sigma_p, t1_p - t0_p)
     window = None
     rgb_p = torch.zeros(n, s_pad, 3, device=device)
     windowed = baked.field is not None and baked.field_samples > 0
     if windowed and ray.numel():
         # the field's own colour and depth from a window around the baked surface (a LiDAR's: its depth alone);
         # every sample of a ray takes the window's colour: the ray's is acc * colour + (1 - acc) * background
-        live = torch.nonzero(weights.sum(-1) > volume.EPS, as_tuple=True)[0]
+        live = torch.nonzero(weights.sum(-1) > quadrature.EPS, as_tuple=True)[0]
         mid_p = 0.5 * (t0_p + t1_p)
-        window = (live, *_field_window(baked, rays[live], volume.median_depth(weights[live], mid_p[live]), colour))
+        window = (live, *_field_window(baked, rays[live], quadrature.median_depth(weights[live], mid_p[live]), colour))
         if colour:
             rgb_p[live] = window[1][:, None, :].expand(-1, s_pad, -1)
     if colour and not windowed:  # (a windowed chunk whose rays cross no brick has nothing to colour)
@@ -1073,8 +1074,8 @@ def fallback_rays(baked: BakedScene, weights: Tensor, mid: Tensor) -> Tensor:
     out = torch.zeros_like(acc, dtype=torch.bool)
     if baked.nerf_fallback_share is not None:
         half = baked.nerf_fallback_voxels * float(baked.voxel_m.max())
-        far = (mid - volume.median_depth(weights, mid)[:, None]).abs() > half
-        out |= (acc > volume.EPS) & ((weights * far).sum(-1) >= baked.nerf_fallback_share * acc)
+        far = (mid - quadrature.median_depth(weights, mid)[:, None]).abs() > half
+        out |= (acc > quadrature.EPS) & ((weights * far).sum(-1) >= baked.nerf_fallback_share * acc)
     if baked.nerf_fallback_accumulation is not None:
         out |= acc < baked.nerf_fallback_accumulation
     return out

@@ -5,7 +5,7 @@
 ``sampler.kind: proposal`` (``render_proposal``; mip-NeRF 360 / nerfacto)
     ``n_0`` uniform bins in the spacing coordinate -> proposal field 0 -> resample ``n_1`` bins
     from its weights -> proposal field 1 -> ... -> ``final_samples`` bins -> scene field
-    (density and colour) -> volume rendering (``nsim.rendering.volume``).
+    (density and colour) -> volume rendering (``nsim.volume.quadrature``).
 ``sampler.kind: grid`` (``render_grid``; instant-NGP / nerfacc)
     A coarse density grid over the scene box, kept by the trainer as a decaying maximum of the
     field's density (``update_grid``), marks the cells worth sampling. Rays are marched with a
@@ -27,9 +27,10 @@ from torch import Tensor, nn
 from nsim.config import param
 from nsim.fields.hash_encoding import HashEncoding
 from nsim.fields.scene_field import ProposalField, ProposalFieldConfig, SceneField, SceneFieldConfig
-from nsim.rendering import volume
-from nsim.rendering.rays import Rays
 from nsim.rendering.samplers import SPACINGS, pdf_resample, spacing_to_t, uniform_bins
+from nsim.volume import quadrature
+from nsim.volume.rays import Rays
+from nsim.volume.samples import RaySamples, RenderOutput
 
 SAMPLER_KINDS = ("proposal", "grid")
 BACKGROUNDS = ("constant", "last_sample")
@@ -112,42 +113,6 @@ class SamplerConfig:
         return ProposalFieldConfig(self.proposal_hash_levels, self.proposal_hash_features_per_level,
                                    self.proposal_hash_log2_table_size, self.proposal_hash_base_resolution,
                                    self.proposal_hash_max_resolutions[k], self.proposal_hidden_dim)
-
-
-@dataclass
-class RaySamples:
-    """Samples along rays, for compositing with other fields' samples (e.g. the human field;
-    ``nsim.rendering.compositing``).
-
-    t_starts, t_ends: (R, S) metres along the (unit) ray; sigma: (R, S) 1/m; rgb: (R, S, 3).
-    Padding samples have ``t_starts == t_ends`` and ``sigma == 0``.
-    """
-
-    t_starts: Tensor
-    t_ends: Tensor
-    sigma: Tensor
-    rgb: Tensor
-
-
-@dataclass
-class RenderOutput:
-    """Per-ray results. rgb: (R, 3); depth: (R,) normalised expected range (``sum w t / sum w``,
-    metres along the unit ray); depth_median: (R,) median range; accumulation: (R,) opacity;
-    weights: (R, S) of the final samples; samples: the final samples (when asked for);
-    background: (R, 3) the colour the ray's remaining light ``1 - accumulation`` was composited
-    over (``SamplerConfig.background``), for renderers that merge more samples later.
-    Training extras: the final and proposal bins (spacing coordinate) and proposal weights."""
-
-    rgb: Tensor
-    depth: Tensor
-    depth_median: Tensor
-    accumulation: Tensor
-    weights: Tensor
-    samples: RaySamples | None = None
-    background: Tensor | None = None
-    bins: Tensor | None = None
-    proposal_weights: list[Tensor] | None = None
-    proposal_bins: list[Tensor] | None = None
 
 
 class SceneModel(nn.Module):
@@ -334,18 +299,18 @@ class SceneModel(nn.Module):
         t1_p = far.clone().index_put((ray, slot), t1)
         sigma_p = torch.zeros(n, s_pad, device=device, dtype=sigma.dtype).index_put((ray, slot), sigma)
         rgb_p = torch.zeros(n, s_pad, 3, device=device, dtype=rgb.dtype).index_put((ray, slot), rgb)
-        weights, _ = volume.render_weights(sigma_p, t1_p - t0_p)
+        weights, _ = quadrature.render_weights(sigma_p, t1_p - t0_p)
         acc = weights.sum(-1)
         # each ray's last kept sample: slot counts - 1 (rays without samples: background_rgb)
         last = rgb_p[torch.arange(n, device=device), (counts - 1).clamp(min=0)] if n else rgb_p[:, 0]
         bg = self.ray_background(last, counts > 0)
-        out_rgb = volume.accumulate(weights, rgb_p) + (1.0 - acc)[:, None] * bg
+        out_rgb = quadrature.accumulate(weights, rgb_p) + (1.0 - acc)[:, None] * bg
         mid_p = 0.5 * (t0_p + t1_p)
-        depth = torch.where(acc > volume.EPS, volume.expected_depth(weights, mid_p, acc), rays.far)
+        depth = torch.where(acc > quadrature.EPS, quadrature.expected_depth(weights, mid_p, acc), rays.far)
         return RenderOutput(
             rgb=out_rgb,
             depth=depth,
-            depth_median=volume.median_depth(weights, mid_p),
+            depth_median=quadrature.median_depth(weights, mid_p),
             accumulation=acc,
             weights=weights,
             samples=RaySamples(t0_p, t1_p, sigma_p, rgb_p) if return_samples else None,
@@ -401,7 +366,7 @@ class SceneModel(nn.Module):
             x = rays.origins[:, None, :] + rays.dirs[:, None, :] * mid[..., None]
             with torch.set_grad_enabled(proposal_grad and torch.is_grad_enabled()):
                 sigma = prop(x.reshape(-1, 3)).view(n, -1)
-                w, _ = volume.render_weights(sigma, t[:, 1:] - t[:, :-1])
+                w, _ = quadrature.render_weights(sigma, t[:, 1:] - t[:, :-1])
             prop_weights.append(w)
             prop_bins.append(bins)
             n_next = cfg.proposal_samples[k + 1] if k + 1 < len(self.proposals) else cfg.final_samples
@@ -418,14 +383,14 @@ class SceneModel(nn.Module):
         image_index = None if rays.image_index is None else rays.image_index[:, None].expand(-1, s).reshape(-1)
         codes = self.field.appearance_codes(image_index, n * s, appearance, self.train_mask)
         rgb = self.field.color(geo, dirs, codes).view(n, s, 3)
-        weights, _ = volume.render_weights(sigma, t1 - t0)
+        weights, _ = quadrature.render_weights(sigma, t1 - t0)
         acc = weights.sum(-1)
         bg = self.ray_background(rgb[:, -1])
-        out_rgb = volume.accumulate(weights, rgb) + (1.0 - acc)[:, None] * bg
+        out_rgb = quadrature.accumulate(weights, rgb) + (1.0 - acc)[:, None] * bg
         return RenderOutput(
             rgb=out_rgb,
-            depth=volume.expected_depth(weights, mid, acc),
-            depth_median=volume.median_depth(weights, mid),
+            depth=quadrature.expected_depth(weights, mid, acc),
+            depth_median=quadrature.median_depth(weights, mid),
             accumulation=acc,
             weights=weights,
             samples=RaySamples(t0, t1, sigma, rgb) if return_samples else None,

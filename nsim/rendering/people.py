@@ -10,7 +10,7 @@ and optionally ``motion (P,)`` and ``appearance (P,)``) and the human checkpoint
 2. ``visible``: the paper's Algorithm 1, corrected (``nsim.rendering.culling``): the people whose
    posed box the sensor's rays can see, with the rays to cast their samples on;
 3. ``composite``: the scene's samples and every visible person's merged in depth order, one volume
-   rendering over both (``nsim.rendering.compositing``, the human trainer's compositing too); the
+   rendering over both (``nsim.volume.compositing``, the human trainer's compositing too); the
    instance id of a ray is the person holding more than half its weight.
 
 Used by ``nsim.rendering.shard`` (``nsim render``) and, for the ground truth of the same poses,
@@ -196,9 +196,9 @@ class HumanSet:
         ``nsim.rendering.baked.render_baked``); None renders ``scene_model`` here."""
         import torch
 
-        from nsim.rendering.compositing import composite_sets, set_weights
-        from nsim.rendering.model import RaySamples
         from nsim.rendering.renderer import render_rays
+        from nsim.volume.compositing import composite_sets, set_weights
+        from nsim.volume.samples import RaySamples
 
         n = len(rays)
         if scene_out is None:

@@ -19,12 +19,12 @@ Two ways to render the same model:
     faint haze, and a thousand samples of weight 5e-5 each add up to 0.05 of the pixel (a
     1e-4 threshold cost 36 dB against the dense image on the default test room).
 
-Every entry point returns a :class:`~nsim.rendering.model.RenderOutput`. ``render_rays`` keeps
+Every entry point returns a :class:`~nsim.volume.samples.RenderOutput`. ``render_rays`` keeps
 only its per-ray fields (rgb, depth, depth_median, accumulation, background: 36 bytes a ray), chunk
 by chunk, so a 1920x1080 view does not hold gigabytes of per-sample output; with
 ``return_samples=True`` it carries the per-sample ``(t_starts, t_ends, sigma, rgb)`` of the
 samples that were evaluated, so a later renderer can merge them with another field's samples
-along the same rays (``nsim.rendering.compositing``).
+along the same rays (``nsim.volume.compositing``).
 """
 
 from __future__ import annotations
@@ -38,10 +38,11 @@ from torch import Tensor
 
 from nsim.config import param
 from nsim.geometry.cameras import dirs_to_world, fill_invalid_dirs
-from nsim.rendering import volume
-from nsim.rendering.model import RaySamples, RenderOutput, SceneModel
+from nsim.rendering.model import SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
-from nsim.rendering.rays import Rays, make_rays
+from nsim.volume import quadrature
+from nsim.volume.rays import Rays, make_rays
+from nsim.volume.samples import RaySamples, RenderOutput
 
 METHODS = ("proposal", "march")
 AUTO = "auto"  # march with the grid when one is given, else the proposal sampler
@@ -95,7 +96,7 @@ def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg:
         if bool(todo.any()):
             s_todo, geo = model.field.density(x[todo])
             sigma[todo] = s_todo.to(sigma.dtype)
-            weights_blk, trans_blk = volume.render_weights(sigma, (t1 - t0).clamp(min=0.0))
+            weights_blk, trans_blk = quadrature.render_weights(sigma, (t1 - t0).clamp(min=0.0))
             weights_blk = weights_blk * acc.trans[alive, None]
             colour = todo
             if cfg.color_skip_weight > 0:
@@ -111,7 +112,7 @@ def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg:
                 dirs = rays.dirs[alive][rows]
                 codes = model.field.appearance_codes(None, dirs.shape[0], appearance, model.train_mask)
                 rgb[colour] = model.field.color(geo[sel], dirs, codes).to(rgb.dtype)
-            acc.rgb[alive] += volume.accumulate(weights_blk, rgb)
+            acc.rgb[alive] += quadrature.accumulate(weights_blk, rgb)
             acc.depth[alive] += (weights_blk * mid).sum(-1)
             acc.acc[alive] += weights_blk.sum(-1)
             # transmittance after the block: T * exp(-sum sigma delta)
@@ -127,9 +128,9 @@ def march(model: SceneModel, rays: Rays, grid: OccupancyGrid | None = None, cfg:
     bg = _march_background(model, rays, cfg, acc.trans, appearance)
     rgb = acc.rgb + (1.0 - acc.acc)[:, None] * bg
     t_mid_all = rays.near[:, None] + (torch.arange(n_steps, device=device)[None, :] + 0.5) * cfg.step_m
-    depth = acc.depth / acc.acc.clamp(min=volume.EPS)
-    depth = torch.where(acc.acc > volume.EPS, depth, rays.far)
-    median = volume.median_depth(weights_all, torch.minimum(t_mid_all, rays.far[:, None]))
+    depth = acc.depth / acc.acc.clamp(min=quadrature.EPS)
+    depth = torch.where(acc.acc > quadrature.EPS, depth, rays.far)
+    median = quadrature.median_depth(weights_all, torch.minimum(t_mid_all, rays.far[:, None]))
     samples = _pack_samples(kept, n, cfg.step_m, rays.far, device) if return_samples else None
     return RenderOutput(rgb=rgb, depth=depth, depth_median=median, accumulation=acc.acc, weights=weights_all,
                         samples=samples, background=bg)

@@ -98,8 +98,8 @@ class ShardRenderer:
         scene renders depth and accumulation only (rgb then holds no colour)."""
         import torch
 
-        from nsim.rendering.rays import make_rays
         from nsim.rendering.renderer import render_rays
+        from nsim.volume.rays import make_rays
 
         cfg = self.cfg
         o = torch.as_tensor(np.array(origins, dtype=np.float32), device=self.device)

@@ -10,7 +10,7 @@ NeRF itself scores 32.5 (``bench/baked_colour.py`` and the README have the figur
 two views must land on the same point, which only one sharp surface gives.
 
 Baking (``bake_surface``: arrays in, arrays out)
-    1. Mesh (``mesh_of_bricks``): marching cubes (``nsim.export.mesh.marching_cubes``) at ``surface_level``
+    1. Mesh (``mesh_of_bricks``): marching cubes (``nsim.volume.density_mesh.marching_cubes``) at ``surface_level``
        (1/m) of the volume bake's density lattice, one slab of bricks at a time, the slabs' shared vertices
        welded. Pieces under ``surface_min_area_m2`` are dropped (floaters).
     2. Fit (``fit_mesh``): the target is the NeRF's median depth on the training rays (every
@@ -32,7 +32,7 @@ Rendering (``render_surface``: rays in, a ``RenderOutput`` out)
     Embree (``embreex``, CPU) casts each ray from ``near`` to ``far`` against the mesh (two-sided); a hit's
     colour is the texture at the hit point (on the scene's device), its accumulation 1, its depth and median
     depth the hit's range; a miss has accumulation 0 and the background's colour. With samples (the people's
-    merge, ``nsim.rendering.compositing``): one opaque sample at the hit.
+    merge, ``nsim.volume.compositing``): one opaque sample at the hit.
 
 Shapes: vertices ``(V, 3)`` float32 world metres, faces ``(F, 3)`` int32; rays ``(R,)``.
 """
@@ -52,8 +52,8 @@ from torch import Tensor, nn
 from nsim.errors import ConfigError
 from nsim.fields.hash_encoding import HashEncoding
 from nsim.fields.mlp import MLP
-from nsim.rendering.model import RaySamples, RenderOutput
-from nsim.rendering.rays import Rays
+from nsim.volume.rays import Rays
+from nsim.volume.samples import RaySamples, RenderOutput
 
 log = logging.getLogger(__name__)
 
@@ -200,7 +200,7 @@ def mesh_of_bricks(brick_index: np.ndarray, density: np.ndarray, bricks_per_side
     k) B + (a, b, c)) voxel_m``); space without a brick counts as density 0. Marching cubes one slab of bricks
     along x at a time (``SLAB_NODES``), the slabs' shared vertices welded. Returns ``vertices (V, 3)`` float32 and
     ``faces (F, 3)`` int32; none when the level is not crossed."""
-    from nsim.export import mesh as meshing
+    from nsim.volume import density_mesh as meshing
 
     b = int(bricks_per_side)
     p = b + 1
@@ -255,7 +255,7 @@ def fit_mesh(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, dirs:
     import scipy.sparse as sp
     import scipy.sparse.linalg as spl
 
-    from nsim.export import mesh as meshing
+    from nsim.volume import density_mesh as meshing
 
     v = vertices.astype(np.float64)
     passes_out = []

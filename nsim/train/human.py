@@ -61,15 +61,16 @@ from torch import Tensor
 
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
+from nsim.geometry.cameras import dirs_to_world
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.refine import BodyPoseRefinement, pose_change
 from nsim.human.skeleton import Skeleton, pose_aabb
 from nsim.io import atomic_path
 from nsim.metrics.image import psnr
-from nsim.rendering.model import RaySamples
-from nsim.rendering.rays import camera_dirs, make_rays, rays_from_pixels
 from nsim.train import loop
 from nsim.train.loop import ResumableTrainer, StepStats, spread, step_seed
+from nsim.volume.rays import camera_dirs, make_rays
+from nsim.volume.samples import RaySamples
 
 log = logging.getLogger(__name__)
 
@@ -354,7 +355,7 @@ class HumanTrainer(ResumableTrainer):
         dirs_cam = self.dirs_cam.reshape(-1, 3)
         for row, i in enumerate(frame_ids):
             dil = torch.as_tensor(_dilate(self.data.masks[i], self.cfg.data.mask_dilation_px)).reshape(-1)
-            origins, dirs = rays_from_pixels(dirs_cam, self.cam_to_world[i].expand(h * w, 4, 4))
+            origins, dirs = dirs_to_world(dirs_cam, self.cam_to_world[i].expand(h * w, 4, 4))
             box = self.model.posed_box(poses[row])[0]
             rays = make_rays(origins, dirs, self.cfg.data.near_m, 1e4, box)
             in_box = (rays.far > rays.near + 2e-4).cpu()
@@ -433,7 +434,7 @@ class HumanTrainer(ResumableTrainer):
         ``MergedRender`` whose ``alpha[0]`` is the person's visible opacity. ``poses``: the frames'
         joint transforms ``(N, J, 4, 4)`` (default :meth:`poses`)."""
         c2w = self.cam_to_world[frames]
-        origins, dirs = rays_from_pixels(self.dirs_cam[v, u], c2w)
+        origins, dirs = dirs_to_world(self.dirs_cam[v, u], c2w)
         poses = self.poses() if poses is None else poses
         human = self.model.render_samples(origins, dirs, poses, near=self.cfg.data.near_m,
                                           generator=generator, pose_index=frames)

@@ -55,10 +55,9 @@ from torch import Tensor
 from nsim.config import config_digest, param, to_dict
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
+from nsim.geometry.cameras import dirs_to_world
 from nsim.metrics.image import psnr, ssim
-from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
-from nsim.rendering.rays import PoseRefinement, Rays, camera_dirs, make_rays, rays_from_pixels
 from nsim.train import loop
 from nsim.train.loop import ResumableTrainer, StepStats, spread, step_seed
 from nsim.train.scene_data import (
@@ -76,6 +75,8 @@ from nsim.train.scene_eval import (
     render_image,
     score_views,
 )
+from nsim.volume import quadrature
+from nsim.volume.rays import PoseRefinement, Rays, camera_dirs, make_rays
 
 log = logging.getLogger(__name__)
 
@@ -259,7 +260,7 @@ def finest_hash_resolution(data: SceneData, aabb, contract: bool,
 
 def z_depth_to_range(depth_z: Tensor, dirs_cam_z: Tensor) -> Tensor:
     """Range along the unit ray ``z / d_z`` from z-depth ``(R,)`` and the ray's camera-axes direction's
-    z ``(R,)`` (``nsim.rendering.rays.camera_dirs``); 0 where there is no depth (``z <= 0``) or the ray
+    z ``(R,)`` (``nsim.volume.rays.camera_dirs``); 0 where there is no depth (``z <= 0``) or the ray
     does not look forward (``d_z <= 1e-6``). The torch twin of ``nsim.sensors.depth.z_depth_to_range``."""
     ok = (depth_z > 0) & (dirs_cam_z > 1e-6)
     return torch.where(ok, depth_z / torch.where(ok, dirs_cam_z, 1.0), 0.0)
@@ -479,7 +480,7 @@ class SceneTrainer(ResumableTrainer):
         c2w = self.cam_to_world[img]
         if self.pose_refine is not None:
             c2w = self.pose_refine(c2w, img)
-        origins, dirs = rays_from_pixels(dirs_cam, c2w)
+        origins, dirs = dirs_to_world(dirs_cam, c2w)
         s = self.cfg.sampler
         return make_rays(origins, dirs, s.near_m, s.far_m, self.aabb.to(self.device) if s.clip_rays_to_box else None,
                          image_index=img)
@@ -606,15 +607,15 @@ class SceneTrainer(ResumableTrainer):
             mse = torch.mean((rgb - target) ** 2)
             loss = mse
             if cfg.loss.opacity_weight > 0 and step >= cfg.loss.opacity_start * cfg.optim.steps:
-                entropy = volume.opacity_loss(out.accumulation)
+                entropy = quadrature.opacity_loss(out.accumulation)
                 loss = loss + cfg.loss.opacity_weight * entropy
                 extra["opacity"] = share * float(entropy.detach())
             if cfg.loss.interlevel_weight > 0 and update_proposals:
-                inter = volume.interlevel_loss(out.weights, out.bins, out.proposal_weights, out.proposal_bins)
+                inter = quadrature.interlevel_loss(out.weights, out.bins, out.proposal_weights, out.proposal_bins)
                 loss = loss + cfg.loss.interlevel_weight * inter
                 extra["interlevel"] = share * float(inter.detach())
             if cfg.loss.distortion_weight > 0 and out.bins is not None:
-                dist = volume.distortion_loss(out.weights, out.bins)
+                dist = quadrature.distortion_loss(out.weights, out.bins)
                 loss = loss + cfg.loss.distortion_weight * dist
                 extra["distortion"] = share * float(dist.detach())
             elif cfg.loss.distortion_weight > 0 and out.samples is not None:
@@ -622,7 +623,7 @@ class SceneTrainer(ResumableTrainer):
                 span = (rays.far - rays.near).clamp(min=1e-6)[:, None]
                 s0 = (out.samples.t_starts - rays.near[:, None]) / span
                 s1 = (out.samples.t_ends - rays.near[:, None]) / span
-                dist = volume.distortion_loss_intervals(out.weights, s0, s1)
+                dist = quadrature.distortion_loss_intervals(out.weights, s0, s1)
                 loss = loss + cfg.loss.distortion_weight * dist
                 extra["distortion"] = share * float(dist.detach())
             if cfg.loss.free_space_weight > 0 and not grid and step >= cfg.loss.free_space_start * cfg.optim.steps:

@@ -48,9 +48,10 @@ from torch import Tensor
 
 from nsim.config import param
 from nsim.fields.encodings import spherical_harmonics
+from nsim.geometry.cameras import dirs_to_world
 from nsim.metrics.depth import DepthConfig
 from nsim.rendering.model import SceneModel
-from nsim.rendering.rays import make_rays, rays_from_pixels
+from nsim.volume.rays import make_rays
 
 LPIPS_NETS = ("alex", "vgg", "none")
 PROTOCOL_HALF = "nerfstudio left-half embedding fit, right-half score"
@@ -94,7 +95,7 @@ def pixel_rays(view: ViewRays, v: Tensor, u: Tensor, device: torch.device):
     camera-axes z component (z-depth = range * z). Pixels the camera cannot unproject look along +z."""
     uv = torch.stack([u, v], -1).double().numpy()
     d = torch.as_tensor(np.asarray(view.camera.dirs_through(uv, fill_invalid=True)), dtype=torch.float32).to(device)
-    origins, dirs = rays_from_pixels(d, view.cam_to_world.to(device).expand(len(d), 4, 4))
+    origins, dirs = dirs_to_world(d, view.cam_to_world.to(device).expand(len(d), 4, 4))
     return make_rays(origins, dirs, view.near, view.far, view.aabb), d[:, 2]
 
 

@@ -15,12 +15,12 @@ import pytest
 import torch
 
 from nsim.geometry.cameras import FORWARD_DIR, Camera, dirs_to_world, fill_invalid_dirs
-from nsim.rendering.rays import camera_dirs, rays_from_pixels, se3_exp
 from nsim.rendering.renderer import camera_rays
 from nsim.sensors.rig import CameraSensor
 from nsim.train.scene import SceneTrainer
 from nsim.train.scene_eval import ViewRays
 from nsim.train.scene_eval import pixel_rays as eval_pixel_rays
+from nsim.volume.rays import camera_dirs, se3_exp
 
 F32_ATOL = 2e-6  # float32 entry points against the float64 reference
 
@@ -128,7 +128,7 @@ def test_rendering_rays(cam):
     d = camera_dirs(cam).reshape(-1, 3)
     assert d.dtype == torch.float32
     n = d.shape[0]
-    o, w = rays_from_pixels(d, torch.as_tensor(C2W, dtype=torch.float32).expand(n, 4, 4))
+    o, w = dirs_to_world(d, torch.as_tensor(C2W, dtype=torch.float32).expand(n, 4, 4))
     check_filled(cam, o, w)
 
 
@@ -157,7 +157,7 @@ def test_scene_trainer_pixel_dirs_table_and_per_batch_agree(cam):
     stub.dirs_cam = camera_dirs(cam)[None]
     table = SceneTrainer._pixel_dirs(stub, img, v, u)
     np.testing.assert_array_equal(per_batch.numpy(), table.numpy())
-    o, d = rays_from_pixels(per_batch, torch.as_tensor(C2W, dtype=torch.float32).expand(len(v), 4, 4))
+    o, d = dirs_to_world(per_batch, torch.as_tensor(C2W, dtype=torch.float32).expand(len(v), 4, 4))
     check_filled(cam, o, d)
 
 

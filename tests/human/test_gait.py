@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nsim.crowd.gait import stride_length_m
 from nsim.human.bvh import format_bvh, parse_bvh
 from nsim.human.gait import DEFAULT_CLIPS, cadence_steps_per_min, default_clip, idle_cycle, turn, walk_cycle
+from nsim.human.gait_phase import stride_length_m
 from nsim.human.motion import LocomotionLoop
 from nsim.human.skeleton import heading_yaw
 

@@ -21,8 +21,8 @@ from nsim.human.nerf import (
     save_human_model,
 )
 from nsim.human.skeleton import forward_kinematics, nsim_skeleton
-from nsim.rendering.compositing import composite
-from nsim.rendering.model import RaySamples
+from nsim.volume.compositing import composite
+from nsim.volume.samples import RaySamples
 
 
 @pytest.fixture(autouse=True)
@@ -238,7 +238,7 @@ def test_merge_with_empty_equals_rendering_alone(skeleton, walk_poses):
     torch.testing.assert_close(merged.rgb, alone.rgb)
     torch.testing.assert_close(merged.alpha[0], alone.alpha[0])
     assert 0.05 < float(alone.accumulation.mean()) < 0.999
-    # the plain twin: nsim.rendering.compositing.composite of the merged samples gives the same colour
+    # the plain twin: nsim.volume.compositing.composite of the merged samples gives the same colour
     both, _ = merge_samples(s, wall(len(o), 100.0))
     torch.testing.assert_close(render_merged(s, wall(len(o), 100.0), background_rgb=bg).rgb,
                                composite(both, bg).rgb, atol=1e-6, rtol=1e-5)

@@ -9,8 +9,8 @@ from nsim.config import from_dict
 from nsim.fields.scene_field import SceneFieldConfig
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
-from nsim.rendering.rays import make_rays
 from nsim.rendering.renderer import MarchConfig, march
+from nsim.volume.rays import make_rays
 from tests.rendering.reference import BoxField, ToyModel
 
 AABB = [[0.0, 0.0, 0.0], [4.0, 4.0, 2.0]]

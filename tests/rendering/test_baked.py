@@ -13,7 +13,6 @@ import torch
 
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
-from nsim.rendering import volume
 from nsim.rendering.baked import (
     BakeConfig,
     BakedScene,
@@ -28,7 +27,8 @@ from nsim.rendering.baked import (
 )
 from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
-from nsim.rendering.rays import Rays, make_rays
+from nsim.volume import quadrature
+from nsim.volume.rays import Rays, make_rays
 
 AABB = torch.tensor([[0.0, 0.0, 0.0], [2.0, 1.6, 1.2]])
 FIELD = SceneFieldConfig(hash_levels=4, hash_log2_table_size=10, hash_base_resolution=4, hash_max_resolution=64,
@@ -102,10 +102,10 @@ def dense_reference(baked: BakedScene, rays: Rays, field=None):
         with torch.no_grad():
             geo = field.density(x[inside])[1]
     rgb[inside] = baked.decoder(geo, rays.dirs[r])
-    w, _ = volume.render_weights(sigma, t1 - t0)
+    w, _ = quadrature.render_weights(sigma, t1 - t0)
     acc = w.sum(-1)
-    out = volume.accumulate(w, rgb) + (1 - acc)[:, None] * baked.background_rgb
-    depth = torch.where(acc > volume.EPS, volume.expected_depth(w, mid, acc), rays.far)
+    out = quadrature.accumulate(w, rgb) + (1 - acc)[:, None] * baked.background_rgb
+    depth = torch.where(acc > quadrature.EPS, quadrature.expected_depth(w, mid, acc), rays.far)
     return out, depth, acc
 
 
@@ -265,9 +265,9 @@ def test_people_composite_over_the_baked_scene(baked):
     ``compositing.composite_sets`` of the baked samples and the person's."""
     from types import SimpleNamespace
 
-    from nsim.rendering.compositing import composite_sets
-    from nsim.rendering.model import RaySamples
     from nsim.rendering.people import HumanSet
+    from nsim.volume.compositing import composite_sets
+    from nsim.volume.samples import RaySamples
     from tests.rendering.people_fixture import opaque_person
 
     person, T = opaque_person((1.0, 0.8))
@@ -364,20 +364,20 @@ def test_field_samples_render_the_field_in_a_window_around_the_baked_surface(bak
         x = rays.origins[r] + rays.dirs[r] * (0.5 * (t0 + t1))[:, None]
         brick, local = locate(exact, x)
         sigma = torch.where(brick >= 0, density_at(exact, brick.clamp(min=0), local), 0.0)
-        w = volume.render_weights(sigma[None], (t1 - t0)[None])[0][0]
+        w = quadrature.render_weights(sigma[None], (t1 - t0)[None])[0][0]
         acc = float(w.sum())
-        if acc <= volume.EPS:
+        if acc <= quadrature.EPS:
             continue
-        centre = float(volume.median_depth(w[None], (0.5 * (t0 + t1))[None])[0])
+        centre = float(quadrature.median_depth(w[None], (0.5 * (t0 + t1))[None])[0])
         lo, hi = max(centre - half, float(rays.near[r])), min(centre + half, float(rays.far[r]))
         e = lo + (hi - lo) * torch.arange(m + 1, dtype=torch.float32) / m
         mid = 0.5 * (e[1:] + e[:-1])
         with torch.no_grad():
             sig, geo = model.field.density(rays.origins[r] + rays.dirs[r] * mid[:, None])
-        ww = volume.render_weights(sig[None].float(), (e[1:] - e[:-1])[None])[0][0]
+        ww = quadrature.render_weights(sig[None].float(), (e[1:] - e[:-1])[None])[0][0]
         c = sharp(geo.float(), rays.dirs[r].expand(m, 3))
         wsum = float(ww.sum())
-        colour = (ww[:, None] * c).sum(0) / wsum if wsum > volume.EPS else c[m // 2]
+        colour = (ww[:, None] * c).sum(0) / wsum if wsum > quadrature.EPS else c[m // 2]
         rgb[r] = acc * colour
         if wsum > 0.5:
             depth[r] = float((ww * mid).sum()) / wsum
@@ -441,7 +441,7 @@ def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
     counts = torch.bincount(ray, minlength=len(rays))
     slot = torch.arange(len(ray)) - (torch.cumsum(counts, 0) - counts)[ray]
     s_pad = int(counts.max())
-    w = volume.render_weights(torch.zeros(len(rays), s_pad).index_put((ray, slot), sigma),
+    w = quadrature.render_weights(torch.zeros(len(rays), s_pad).index_put((ray, slot), sigma),
                               rays.far[:, None].expand(-1, s_pad).clone().index_put((ray, slot), t1 - t0))[0]
     mid = rays.far[:, None].expand(-1, s_pad).clone().index_put((ray, slot), 0.5 * (t0 + t1))
     split = fallback_rays(hybrid, w, mid)
@@ -452,10 +452,10 @@ def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
         if rule == "accumulation":
             assert bool(split[r]) == (float(wr.sum()) < 0.5)
             continue
-        if float(wr.sum()) <= volume.EPS:
+        if float(wr.sum()) <= quadrature.EPS:
             assert not split[r]
             continue
-        med = float(volume.median_depth(wr[None], mr[None])[0])
+        med = float(quadrature.median_depth(wr[None], mr[None])[0])
         beyond = float(wr[(mr - med).abs() > float(hybrid.voxel_m.max())].sum())
         assert bool(split[r]) == (beyond >= 0.2 * float(wr.sum()))
     reference = render_rays(model, rays[torch.nonzero(split, as_tuple=True)[0]], "proposal")

@@ -10,9 +10,9 @@ from torch.testing import assert_close
 
 from nsim.config import from_dict
 from nsim.fields.scene_field import SceneFieldConfig
-from nsim.rendering import volume
 from nsim.rendering.model import SamplerConfig, SceneModel
-from nsim.rendering.rays import make_rays
+from nsim.volume import quadrature
+from nsim.volume.rays import make_rays
 
 AABB = torch.tensor([[0.0, 0.0, 0.0], [4.0, 3.0, 2.0]])
 FIELD = SceneFieldConfig(hash_levels=4, hash_log2_table_size=10, hash_max_resolution=64, hidden_dim=16, color_hidden_dim=16,
@@ -57,11 +57,11 @@ def _dense_reference(model: SceneModel, rays, step: float, occupied=None):
             continue
         sigma, geo = model.field.density(x)
         rgb = model.field.color(geo, rays.dirs[r].expand(len(t0), 3), None)
-        w, _ = volume.render_weights(sigma[None], (t1 - t0)[None])
+        w, _ = quadrature.render_weights(sigma[None], (t1 - t0)[None])
         acc = w.sum()
         bg = rgb[-1] if model.sampler_cfg.background == "last_sample" else model.background  # the last sample's colour
         rgbs.append((w[0, :, None] * rgb).sum(0) + (1 - acc) * bg)
-        depths.append(volume.expected_depth(w, (0.5 * (t0 + t1))[None], acc[None])[0])
+        depths.append(quadrature.expected_depth(w, (0.5 * (t0 + t1))[None], acc[None])[0])
     return torch.stack(rgbs), torch.stack(depths)
 
 

@@ -7,8 +7,8 @@ import torch
 from torch.testing import assert_close
 
 from nsim.rendering.occupancy import OccupancyGrid, obstacle_map
-from nsim.rendering.rays import make_rays
 from nsim.rendering.renderer import MarchConfig, march, render_rays
+from nsim.volume.rays import make_rays
 from tests.rendering.reference import BoxField, ToyModel
 
 AABB = [[0.0, 0.0, 0.0], [4.0, 4.0, 2.0]]
@@ -96,7 +96,7 @@ def test_chunked_render_and_samples():
     s = parts.samples
     assert s.t_starts.shape == s.sigma.shape and s.rgb.shape == (*s.sigma.shape, 3)
     # re-compositing the returned samples gives the rendered colour
-    from nsim.rendering.compositing import composite
+    from nsim.volume.compositing import composite
 
     again = composite(s)
     assert_close(again.rgb, parts.rgb, atol=2e-3, rtol=0)

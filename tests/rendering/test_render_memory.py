@@ -12,10 +12,11 @@ from torch import nn
 
 from nsim.config import from_dict
 from nsim.fields.scene_field import SceneFieldConfig
-from nsim.rendering.model import RenderOutput, SamplerConfig, SceneModel
+from nsim.rendering.model import SamplerConfig, SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
-from nsim.rendering.rays import Rays, make_rays
 from nsim.rendering.renderer import PER_RAY_FIELDS, MarchConfig, march, render_rays
+from nsim.volume.rays import Rays, make_rays
+from nsim.volume.samples import RenderOutput
 from tests.rendering.reference import BoxField, ToyModel
 
 AABB = torch.tensor([[0.0, 0.0, 0.0], [4.0, 3.0, 2.0]])

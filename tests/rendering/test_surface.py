@@ -18,7 +18,7 @@ from nsim.rendering import surface as surf
 from nsim.rendering.baked import BakeConfig, BakedScene, bake, render_baked, training_rays
 from nsim.rendering.model import SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
-from nsim.rendering.rays import make_rays
+from nsim.volume.rays import make_rays
 from tests.rendering.test_baked import AABB, FIELD, SAMPLER  # the baked-scene tests' micro field
 
 
@@ -279,9 +279,9 @@ def test_people_composite_over_the_surface_in_depth_order():
     the person's samples."""
     from types import SimpleNamespace
 
-    from nsim.rendering.compositing import composite_sets
-    from nsim.rendering.model import RaySamples
     from nsim.rendering.people import HumanSet
+    from nsim.volume.compositing import composite_sets
+    from nsim.volume.samples import RaySamples
     from tests.rendering.people_fixture import opaque_person
 
     person, T = opaque_person((0.0, 0.0))

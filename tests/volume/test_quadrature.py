@@ -7,9 +7,9 @@ import math
 import torch
 from torch.testing import assert_close
 
-from nsim.rendering import volume
-from nsim.rendering.compositing import composite
-from nsim.rendering.model import RaySamples
+from nsim.volume import quadrature
+from nsim.volume.compositing import composite
+from nsim.volume.samples import RaySamples
 from tests.rendering.reference import distortion_quadratic, render_weights_loop
 
 
@@ -17,22 +17,22 @@ def test_two_samples_by_hand():
     sigma = torch.tensor([[2.0, 3.0]])
     delta = torch.tensor([[0.5, 0.25]])
     a0, a1 = 1 - math.exp(-1.0), 1 - math.exp(-0.75)
-    w, trans = volume.render_weights(sigma, delta)
+    w, trans = quadrature.render_weights(sigma, delta)
     assert_close(w, torch.tensor([[a0, (1 - a0) * a1]]))
     assert_close(trans, torch.tensor([[1.0, math.exp(-1.0)]]))
     rgb = torch.tensor([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
-    assert_close(volume.accumulate(w, rgb), torch.tensor([[a0, (1 - a0) * a1, 0.0]]))
+    assert_close(quadrature.accumulate(w, rgb), torch.tensor([[a0, (1 - a0) * a1, 0.0]]))
     t_mid = torch.tensor([[1.0, 2.0]])
     acc = w.sum(-1)
-    assert_close(volume.expected_depth(w, t_mid), (w * t_mid).sum(-1) / acc)
-    assert_close(volume.median_depth(w, t_mid), torch.tensor([1.0]))  # a0 = 0.63 > half of 0.81
+    assert_close(quadrature.expected_depth(w, t_mid), (w * t_mid).sum(-1) / acc)
+    assert_close(quadrature.median_depth(w, t_mid), torch.tensor([1.0]))  # a0 = 0.63 > half of 0.81
 
 
 def test_matches_loop_reference():
     g = torch.Generator().manual_seed(0)
     sigma = torch.rand(5, 17, generator=g, dtype=torch.float64) * 10
     delta = torch.rand(5, 17, generator=g, dtype=torch.float64) * 0.2
-    w, _ = volume.render_weights(sigma, delta)
+    w, _ = quadrature.render_weights(sigma, delta)
     assert_close(w, render_weights_loop(sigma, delta))
     assert (w.sum(-1) <= 1 + 1e-12).all()
 
@@ -41,11 +41,11 @@ def test_opaque_wall_depths():
     t = torch.linspace(0, 10, 101)[None]
     sigma = torch.zeros(1, 100)
     sigma[0, 40:45] = 1e4  # an opaque slab from t = 4.0 to 4.5: everything lands in the first bin [4.0, 4.1]
-    w, _ = volume.render_weights(sigma, t[:, 1:] - t[:, :-1])
+    w, _ = quadrature.render_weights(sigma, t[:, 1:] - t[:, :-1])
     mid = 0.5 * (t[:, 1:] + t[:, :-1])
     assert abs(float(w.sum()) - 1.0) < 1e-6
-    assert abs(float(volume.expected_depth(w, mid)) - 4.05) < 1e-4
-    assert abs(float(volume.median_depth(w, mid)) - 4.05) < 1e-4
+    assert abs(float(quadrature.expected_depth(w, mid)) - 4.05) < 1e-4
+    assert abs(float(quadrature.median_depth(w, mid)) - 4.05) < 1e-4
 
 
 def test_distortion_loss_matches_quadratic_form():
@@ -53,7 +53,7 @@ def test_distortion_loss_matches_quadratic_form():
     w = torch.rand(6, 12, generator=g, dtype=torch.float64)
     w = w / w.sum(-1, keepdim=True) * 0.9
     bins = torch.sort(torch.rand(6, 13, generator=g, dtype=torch.float64), dim=-1).values
-    assert_close(volume.distortion_loss(w, bins), distortion_quadratic(w, bins))
+    assert_close(quadrature.distortion_loss(w, bins), distortion_quadratic(w, bins))
 
 
 def test_distortion_prefers_compact_weights():
@@ -61,7 +61,7 @@ def test_distortion_prefers_compact_weights():
     spread = torch.full((1, 10), 0.1)
     peak = torch.zeros(1, 10)
     peak[0, 4] = 1.0
-    assert volume.distortion_loss(peak, bins) < volume.distortion_loss(spread, bins)
+    assert quadrature.distortion_loss(peak, bins) < quadrature.distortion_loss(spread, bins)
 
 
 def test_interlevel_loss_zero_when_proposal_bounds_final():
@@ -70,9 +70,9 @@ def test_interlevel_loss_zero_when_proposal_bounds_final():
     # a coarser proposal (4 bins) that puts at least the final mass in every bin
     coarse_bins = torch.linspace(0, 1, 5)[None]
     coarse = torch.tensor([[0.0, 0.7, 0.2, 0.0]])
-    assert abs(float(volume.interlevel_loss(final, bins, [coarse], [coarse_bins]))) < 1e-9
+    assert abs(float(quadrature.interlevel_loss(final, bins, [coarse], [coarse_bins]))) < 1e-9
     too_low = torch.tensor([[0.0, 0.3, 0.1, 0.0]])
-    loss = volume.interlevel_loss(final, bins, [too_low], [coarse_bins])
+    loss = quadrature.interlevel_loss(final, bins, [too_low], [coarse_bins])
     # envelopes (coarse bins touching a final bin count): bin 2 [.25, .375] -> 0.3 >= 0.1; bin 3 [.375, .5]
     # -> 0.3 + 0.1 < 0.6; bin 4 [.5, .625] -> 0.1 < 0.2
     expected = (0.6 - 0.4) ** 2 / (0.6 + 1e-7) + (0.2 - 0.1) ** 2 / (0.2 + 1e-7)

@@ -1,5 +1,5 @@
 """One compositor: the human trainer's merge (``render_merged``) and the renderer's (``HumanSet.composite``)
-are ``nsim.rendering.compositing``, and give the same pixels on the same sample sets."""
+are ``nsim.volume.compositing``, and give the same pixels on the same sample sets."""
 
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ from nsim.human.gait import walk_cycle
 from nsim.human.motion import LocomotionLoop
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.skeleton import forward_kinematics, nsim_skeleton
-from nsim.rendering import volume
-from nsim.rendering.compositing import composite, composite_sets, merge_samples, set_weights
-from nsim.rendering.model import RaySamples, RenderOutput
 from nsim.rendering.people import HumanSet
-from nsim.rendering.rays import Rays
+from nsim.volume import quadrature
+from nsim.volume.compositing import composite, composite_sets, merge_samples, set_weights
+from nsim.volume.rays import Rays
+from nsim.volume.samples import RaySamples, RenderOutput
 
 SMALL = HumanModelConfig(hash_levels=4, hash_log2_table_size=10, hash_max_resolution=64, hidden_dim=16,
                          color_hidden_dim=16, samples_per_ray=16)
@@ -107,13 +107,13 @@ def _previous_model_composite(samples: RaySamples, background_rgb=None):
     t1 = torch.gather(samples.t_ends, -1, order)
     sigma = torch.gather(samples.sigma, -1, order)
     rgb = torch.gather(samples.rgb, 1, order[..., None].expand(-1, -1, 3))
-    weights, _ = volume.render_weights(sigma, t1 - t0)
+    weights, _ = quadrature.render_weights(sigma, t1 - t0)
     acc = weights.sum(-1)
-    out = volume.accumulate(weights, rgb)
+    out = quadrature.accumulate(weights, rgb)
     if background_rgb is not None:
         out = out + (1.0 - acc)[:, None] * background_rgb
     mid = 0.5 * (t0 + t1)
-    return out, volume.expected_depth(weights, mid, acc), volume.median_depth(weights, mid), acc, weights
+    return out, quadrature.expected_depth(weights, mid, acc), quadrature.median_depth(weights, mid), acc, weights
 
 
 def _previous_render_merged(*sets: RaySamples, background_rgb=None):
@@ -127,13 +127,13 @@ def _previous_render_merged(*sets: RaySamples, background_rgb=None):
     order = torch.argsort(t0, dim=1, stable=True)
     t0, t1, sigma, source = (torch.gather(x, 1, order) for x in (t0, t1, sigma, source))
     rgb = torch.gather(rgb, 1, order[..., None].expand(-1, -1, 3))
-    weights, _ = volume.render_weights(sigma, t1 - t0)
+    weights, _ = quadrature.render_weights(sigma, t1 - t0)
     acc = weights.sum(-1)
-    out = volume.accumulate(weights, rgb)
+    out = quadrature.accumulate(weights, rgb)
     if background_rgb is not None:
         out = out + (1.0 - acc)[:, None] * background_rgb
     mid = 0.5 * (t0 + t1)
-    depth = (weights * mid).sum(-1) / acc.clamp(min=volume.EPS)
+    depth = (weights * mid).sum(-1) / acc.clamp(min=quadrature.EPS)
     alpha = torch.stack([(weights * (source == k)).sum(-1) for k in range(len(sets))])
     return out, acc, depth, alpha
 
@@ -165,7 +165,7 @@ def test_composite_is_bit_identical_to_the_previous_renderer():
 
 def test_render_merged_keeps_colour_and_masks_and_clamps_depth():
     """Training's colour, opacity and masks are bit-identical to before. Its depth is now the renderer's
-    (``volume.expected_depth``: clamped to the first and last samples' midpoints): a ray with no weight
+    (``quadrature.expected_depth``: clamped to the first and last samples' midpoints): a ray with no weight
     moves from 0 to its first midpoint, and where the merged midpoints are not in order (overlapping
     intervals) the clamp bites; elsewhere it is unchanged. Nothing published reads it (``HumanModel.render``
     zeroes depth where the opacity is below 1e-4, and the stages keep only its colour)."""

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from nsim.human.skeleton import REFERENCE_HEIGHT_M
+
 STEP_COEFF_M = 0.63
-REFERENCE_HEIGHT_M = 1.75
 MIN_SPEED_MPS = 0.1
 
 

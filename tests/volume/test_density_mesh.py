@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from nsim.export import mesh as M
+from nsim.volume import density_mesh as M
 
 CENTRE = np.array([1.3, -0.4, 0.9])  # off the origin and off the lattice: no lucky alignment
 RADIUS = 0.7

@@ -7,13 +7,12 @@ import torch
 from scipy.linalg import expm
 from torch.testing import assert_close
 
-from nsim.geometry.cameras import Camera
-from nsim.rendering.rays import (
+from nsim.geometry.cameras import Camera, dirs_to_world
+from nsim.volume.rays import (
     PoseRefinement,
     camera_dirs,
     intersect_aabb,
     make_rays,
-    rays_from_pixels,
     se3_exp,
 )
 
@@ -39,7 +38,7 @@ def test_camera_rays_match_geometry_module():
     c2w[:3, 3] = [1.0, 2.0, 0.5]
     o_ref, d_ref = cam.pixel_rays(c2w)
     dirs = camera_dirs(cam).reshape(-1, 3)
-    o, d = rays_from_pixels(dirs, torch.tensor(c2w, dtype=torch.float32).expand(dirs.shape[0], 4, 4))
+    o, d = dirs_to_world(dirs, torch.tensor(c2w, dtype=torch.float32).expand(dirs.shape[0], 4, 4))
     assert_close(d.numpy(), d_ref.reshape(-1, 3).astype(np.float32), atol=1e-6, rtol=0)
     assert_close(o.numpy(), o_ref.reshape(-1, 3).astype(np.float32))
 

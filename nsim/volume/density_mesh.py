@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from nsim.rendering import volume
+from nsim.volume import quadrature
 
 DensityFn = Callable[[Tensor], Tensor]  # x_world (N, 3) -> sigma (N,) 1/m
 RadianceFn = Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]  # x (N, 3), unit dirs (N, 3) -> sigma (N,), rgb (N, 3)
@@ -263,8 +263,8 @@ def _probe(radiance_fn: RadianceFn, p: Tensor, d: Tensor, probe_m: float, s: int
     x = p[:, None, :] + d[:, None, :] * mid[None, :, None]
     sigma, rgb = radiance_fn(x.reshape(-1, 3), d[:, None, :].expand(-1, s, -1).reshape(-1, 3))
     sigma, rgb = sigma.view(m, s).float(), rgb.view(m, s, 3).float()
-    w, _ = volume.render_weights(sigma, (edges[1:] - edges[:-1]).expand(m, s))
+    w, _ = quadrature.render_weights(sigma, (edges[1:] - edges[:-1]).expand(m, s))
     acc = w.sum(-1)
-    mean = volume.accumulate(w, rgb) / acc.clamp(min=1e-6)[:, None]
+    mean = quadrature.accumulate(w, rgb) / acc.clamp(min=1e-6)[:, None]
     at_point = 0.5 * (rgb[:, (s - 1) // 2] + rgb[:, s // 2])
     return torch.where((acc > 1e-4)[:, None], mean, at_point)

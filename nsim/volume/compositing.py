@@ -3,7 +3,7 @@
 Several fields can put samples on the same rays (the scene NeRF, each person's human NeRF). They
 are composited together in depth order: every ray's samples are concatenated over the sets and
 sorted by ``t_starts`` (stably: ties keep the sets' order), then volume-rendered once
-(``nsim.rendering.volume``). Overlapping intervals are treated as consecutive (their optical
+(``nsim.volume.quadrature``). Overlapping intervals are treated as consecutive (their optical
 depths add). Shapes: rays ``(R,)``, set ``k`` has ``(R, S_k)`` samples, merged ``(R, S)`` with
 ``S = sum S_k``.
 
@@ -17,8 +17,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from nsim.rendering import volume
-from nsim.rendering.model import RaySamples, RenderOutput
+from nsim.volume import quadrature
+from nsim.volume.samples import RaySamples, RenderOutput
 
 
 def merge_samples(*sets: RaySamples) -> tuple[RaySamples, Tensor]:
@@ -49,16 +49,16 @@ def composite_sets(*sets: RaySamples, background_rgb: Tensor | None = None) -> t
     """
     merged, source = merge_samples(*sets)
     t0, t1 = merged.t_starts, merged.t_ends
-    weights, _ = volume.render_weights(merged.sigma, t1 - t0)
+    weights, _ = quadrature.render_weights(merged.sigma, t1 - t0)
     acc = weights.sum(-1)
-    out = volume.accumulate(weights, merged.rgb)
+    out = quadrature.accumulate(weights, merged.rgb)
     bg = None
     if background_rgb is not None:
         bg = background_rgb.to(out)
         out = out + (1.0 - acc)[:, None] * bg
         bg = bg.expand_as(out)
     mid = 0.5 * (t0 + t1)
-    return RenderOutput(out, volume.expected_depth(weights, mid, acc), volume.median_depth(weights, mid), acc, weights,
+    return RenderOutput(out, quadrature.expected_depth(weights, mid, acc), quadrature.median_depth(weights, mid), acc, weights,
                         merged, background=bg), source
 
 

@@ -12,8 +12,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from nsim.geometry.cameras import dirs_to_world
-
 
 @dataclass
 class Rays:
@@ -74,12 +72,6 @@ def camera_dirs(camera, device: str | torch.device = "cpu") -> Tensor:
     ``FORWARD_DIR`` ``(0, 0, 1)`` and should be masked by the caller.
     """
     return torch.as_tensor(camera.pixel_dirs_cam(fill_invalid=True), dtype=torch.float32).to(device)
-
-
-def rays_from_pixels(dirs_cam: Tensor, cam_to_world: Tensor) -> tuple[Tensor, Tensor]:
-    """World origins and dirs ``(R, 3)`` from camera-axes dirs ``(R, 3)`` and per-ray ``cam_to_world (R, 4, 4)``
-    (``nsim.geometry.cameras.dirs_to_world``, re-normalised)."""
-    return dirs_to_world(dirs_cam, cam_to_world)
 
 
 def _skew(v: Tensor) -> Tensor:

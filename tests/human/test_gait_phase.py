@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from nsim.crowd import CrowdState, rollout
-from nsim.crowd.gait import advance_gait_phase, gait_phase, stride_length_m
+from nsim.human.gait_phase import advance_gait_phase, gait_phase, stride_length_m
 
 
 def test_stride_length_relation():
