@@ -10,7 +10,7 @@ the streams found -- cameras and depth with model, size, frame count and rate; L
 per cloud; the odometry with its pose count and path length; the tf frames and links; the body
 trajectory with its source, length and duration -- then decodes every image and every cloud,
 streamed one at a time, as an importer does. ``--selection`` (a topics YAML,
-``nsim.io.robot_log.load_selection``) applies to every BAG.
+``nsim.io.topic_selection.load_selection``) applies to every BAG.
 
 ``--quick`` writes small bags itself with ``nsim.io.rosbag.BagWriter`` (a camera with depth, a
 gray camera and a LiDAR on a moving body; sqlite3, mcap and ROS 1) in a temporary directory,
@@ -40,7 +40,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nsim.errors import InputError  # noqa: E402
-from nsim.io.robot_log import RobotLog, Selection, load_selection  # noqa: E402
+from nsim.io.robot_log import RobotLog  # noqa: E402
+from nsim.io.topic_selection import Selection, load_selection  # noqa: E402
 
 
 def peak_rss_gb() -> float:

@@ -1,7 +1,14 @@
-"""nsim has no import cycles: no module needs, while it loads, a module that needs it back.
+"""nsim's imports form layers: no cycle between its folders, and none between its modules.
 
-The graph is built from the source with ``ast`` (nothing is imported). Its edges are the
-nsim-internal imports that run when a module loads: top-level statements, including those inside
+Two graphs, both built from the source with ``ast`` (nothing is imported):
+
+- **Every import**, wherever it is written (module level, inside functions, under
+  ``if TYPE_CHECKING:``): a lazy import is still a dependency a reader must follow. Between nsim's
+  folders (``nsim/rendering`` -> ``nsim/volume``) it must have no cycle: the folders are layers and
+  look down only. Between modules it must have no cycle either.
+- **Load-time imports** (below): what runs while a module loads, for the traceback a cycle gives.
+
+The load-time graph's edges are the nsim-internal imports that run when a module loads: top-level statements, including those inside
 top-level ``if``/``try``/``with``/``for`` blocks and class bodies, but not those under
 ``if TYPE_CHECKING:`` (never run) or ``if __name__ == "__main__":`` (run as a script only).
 Function-level (lazy) imports are **not** edges: they run when the function is called, after the
@@ -95,14 +102,20 @@ def _loaded_by(
     return {m for m in loaded | reads if m in modules and m != module}
 
 
-def import_graph(root: Path, package: str) -> Graph:
+def every_import(tree: ast.Module):
+    """Every import statement of a module, wherever it is written (functions and TYPE_CHECKING included)."""
+    return (node for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom)))
+
+
+def import_graph(root: Path, package: str, lazy: bool = False) -> Graph:
+    """module -> the modules it imports: while it loads (``lazy`` false), or anywhere in it (``lazy`` true)."""
     files = module_files(root, package)
     modules = set(files)
     graph: Graph = {}
     for module, path in files.items():
         edges: dict[str, int] = {}
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-        for node in load_time_imports(tree.body):
+        for node in every_import(tree) if lazy else load_time_imports(tree.body):
             for target in _loaded_by(node, module, path.name == "__init__.py", modules):
                 edges.setdefault(target, node.lineno)
         graph[module] = edges
@@ -164,6 +177,29 @@ def import_cycles(graph: Graph) -> list[list[str]]:
     return sorted(cycles)
 
 
+def folder_graph(graph: Graph, package: str) -> Graph:
+    """The module graph folded onto ``package``'s first-level folders (``nsim.rendering.people`` -> ``rendering``);
+    top-level modules (``nsim.cli``, ``nsim.config``) are no folder and drop out."""
+    packages = {m for m in graph if any(o.startswith(m + ".") for o in graph)}
+
+    def folder(module: str) -> str | None:
+        parts = module.split(".")
+        in_folder = len(parts) > 2 or (len(parts) == 2 and module in packages)
+        return parts[1] if parts[0] == package and in_folder else None
+
+    folders: Graph = {}
+    for module, edges in graph.items():
+        src = folder(module)
+        if src is None:
+            continue
+        folders.setdefault(src, {})
+        for target, line in edges.items():
+            dst = folder(target)
+            if dst is not None and dst != src:
+                folders[src].setdefault(dst, line)
+    return folders
+
+
 def describe(cycle: list[str], graph: Graph) -> str:
     """``a (line 3) -> b (line 7) -> a``: each module with the line of its import of the next."""
     steps = (f"{a} (line {graph[a][b]})" for a, b in zip(cycle[:-1], cycle[1:], strict=True))
@@ -179,6 +215,48 @@ def test_nsim_has_no_import_cycles():
     assert not cycles, "import cycles (break them, or make one of the imports lazy):\n" + "\n".join(
         describe(c, graph) for c in cycles
     )
+
+
+def test_nsim_folders_are_layers_counting_imports_inside_functions():
+    graph = import_graph(ROOT, "nsim", lazy=True)
+    folders = folder_graph(graph, "nsim")
+    # the builder sees lazy imports (crowd/sensors.py imports rendering inside a method) and folds them onto folders
+    assert "rendering" in folders["crowd"] and "volume" in folders["rendering"]
+    where = {(a, b): f"{a} -> {b}" for a in folders for b in folders[a]}
+    cycles = import_cycles(folders)
+    assert not cycles, "cycles between nsim's folders (move the shared piece below both):\n" + "\n".join(
+        " ; ".join(where[(a, b)] + _first_import(graph, a, b) for a, b in zip(c[:-1], c[1:], strict=True))
+        for c in cycles)
+    module_cycles = import_cycles(graph)
+    assert not module_cycles, "module cycles counting imports inside functions:\n" + "\n".join(
+        describe(c, graph) for c in module_cycles)
+
+
+def _first_import(graph: Graph, a: str, b: str) -> str:
+    """`` (nsim.a.x line 3 imports nsim.b.y)``: one import that makes folder ``a`` depend on folder ``b``."""
+    for module, edges in sorted(graph.items()):
+        for target, line in sorted(edges.items()):
+            if module.startswith(f"nsim.{a}.") and target.startswith(f"nsim.{b}"):
+                return f" ({module} line {line} imports {target})"
+    return ""
+
+
+def test_folder_graph_counts_lazy_imports_and_finds_folder_cycles(tmp_path):
+    _write(tmp_path, {
+        "pkg/__init__.py": "",
+        "pkg/top.py": "from pkg.low.a import A\n",
+        "pkg/low/__init__.py": "",
+        "pkg/low/a.py": "A = 1\ndef f():\n    from pkg.high.b import B\n",
+        "pkg/high/__init__.py": "",
+        "pkg/high/b.py": "from pkg.low.a import A\nB = 2\n",
+    })
+    assert import_cycles(import_graph(tmp_path, "pkg")) == []  # the load-time graph misses the lazy import
+    lazy = import_graph(tmp_path, "pkg", lazy=True)
+    folders = folder_graph(lazy, "pkg")
+    assert folders == {"low": {"high": 3}, "high": {"low": 1}}  # pkg.top is no folder
+    assert import_cycles(folders) == [["high", "low", "high"]]
+    (tmp_path / "pkg/low/a.py").write_text("A = 1\n")
+    assert import_cycles(folder_graph(import_graph(tmp_path, "pkg", lazy=True), "pkg")) == []
 
 
 def _write(root: Path, files: dict[str, str]) -> None:

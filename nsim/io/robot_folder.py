@@ -102,8 +102,9 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
-from nsim.io.robot_log import BODY_FRAMES, CameraStreamInfo, Trajectory, check_keys
+from nsim.io.recording_streams import BODY_FRAMES, CameraStreamInfo, Trajectory
 from nsim.io.rosbag import RING_FIELDS, TIME_FIELDS, LidarPoints, camera_from_info, matrix_from_transform
+from nsim.io.topic_selection import check_keys
 
 log = logging.getLogger(__name__)
 
@@ -414,7 +415,7 @@ def read_rig_urdf(path: Path, names: list[str]) -> FolderRig:
 class FolderCameraStream(CameraStreamInfo):
     """One camera (or depth camera) folder; frames are decoded on demand by :meth:`RobotFolder.image`.
 
-    The attributes of :class:`nsim.io.robot_log.CameraStreamInfo` (what a recording needs): topic: the
+    The attributes of :class:`nsim.io.recording_streams.CameraStreamInfo` (what a recording needs): topic: the
     stream's folder relative to the recording (``cameras/front``); info_topic: its camera_info.yaml,
     relative; frame_id: the stream's name (its sensor in the rig); camera: from camera_info.yaml;
     encoding: what the frames hold, in ROS's words (rgb8, mono8, mono16; depth 16UC1 for millimetre
@@ -427,7 +428,7 @@ class FolderCameraStream(CameraStreamInfo):
 
 @dataclass(frozen=True)
 class FolderLidarStream:
-    """One LiDAR folder (the attributes of :class:`nsim.io.robot_log.LidarStream` a recording needs);
+    """One LiDAR folder (the attributes of :class:`nsim.io.recording_streams.LidarStream` a recording needs);
     fields: the first cloud's field names, in their order; files: (N,) the clouds, in order."""
 
     name: str
@@ -669,7 +670,7 @@ class RobotFolder:
         return np.array(self.rig.sensor_to_body[frame_id], dtype=np.float64)
 
     def body_trajectory(self, source: str = "auto") -> Trajectory:
-        """The body's poses in the odometry frame from trajectory.tum (:class:`nsim.io.robot_log.Trajectory`).
+        """The body's poses in the odometry frame from trajectory.tum (:class:`nsim.io.recording_streams.Trajectory`).
 
         source: ``auto``; ``tf`` and ``odometry`` name a bag's topics, which a folder has not (InputError)."""
         if source not in ("auto", "tf", "odometry"):

@@ -10,52 +10,24 @@
         trajectory = log.body_trajectory()              # stamps_ns (N,), body_to_odom (N, 4, 4)
         pairs = associate(front.stamps_ns, log.lidars["top"].stamps_ns, tolerance_ns=20_000_000)
 
-Bags are opened with ``rosbags.highlevel.AnyReader``: one or more ROS 1 ``.bag`` files (a split
-recording), or one ROS 2 bag directory (``metadata.yaml`` with ``.db3`` or ``.mcap``; the storage
-file itself is accepted too). Message types come from the bag's own definitions, or from ROS 2
-Humble's where a ROS 2 bag has none. Nothing is executed or unpickled.
+(``load_selection`` is :func:`nsim.io.topic_selection.load_selection`, ``associate``
+:func:`nsim.io.header_stamps.associate`.)
 
-**Choosing topics.** A :class:`Selection` (``load_selection`` reads it from YAML, strictly)::
+A bag is one or more ROS 1 ``.bag`` files (a split recording) or one ROS 2 bag directory, read
+with ``rosbags`` (:mod:`nsim.io.bag_topics`); nothing is executed or unpickled.
 
-    cameras:                      # colour/gray images; name -> topics
-      front: {image: /front/image, info: /front/camera_info}
-      back: /back/image_raw/compressed      # info: the CameraInfo topic in the image's namespace
-    depth:                        # depth images (16UC1 millimetres or 32FC1 metres), same form
-      front: /front/depth
-    lidar: {top: /points}         # name -> PointCloud2 topic
-    odometry: /odom               # nav_msgs/Odometry
-    tf: /tf                       # default /tf and /tf_static when present
-    tf_static: /tf_static
-    body_frame: body              # default: the odometry's child frame (if named), else base_link / body / base_footprint
-    odom_frame: odom              # default: the odometry's frame, else odom
+Topics come from a :class:`~nsim.io.topic_selection.Selection`, or by message type where it leaves
+a group out (:mod:`nsim.io.topic_selection` says how). Stamps are the messages' header stamps in
+integer nanoseconds (:mod:`nsim.io.header_stamps`); a stream's ``stamps_from_bag`` counts those
+that came from the bag's receive time instead, and a warning names the topic. The streams, odometry
+and trajectory a log returns are the dataclasses of :mod:`nsim.io.recording_streams`.
 
-A group left out (or ``null``) gets the defaults by message type: **cameras** and **depth** are the
-Image and CompressedImage topics that have a CameraInfo topic in their namespace (``/a/b/image``
-and ``/a/b/image/compressed`` look in ``/a/b/``: ``camera_info`` there, or the only CameraInfo
-topic there); an Image whose first message is 16UC1 or 32FC1 is depth; a compressed topic whose
-raw topic is in the bag is left to the raw one; images without a CameraInfo and compressedDepth
-topics are skipped with a warning. **lidar**: every PointCloud2 topic. **odometry**: the
-Odometry topic when there is exactly one. Default names are the topic's namespace when its last
-part is a generic word (``/front/image`` -> ``front``, ``/velodyne/points`` -> ``velodyne``), the
-whole topic otherwise (``/velodyne_points``), with ``/`` as ``_``. An image topic whose last part
-starts with ``image_rect`` is rectified: its camera is the PINHOLE of the CameraInfo's ``P``
-(``rectified: true|false`` overrides the guess); other images use ``K`` and ``D``
-(:func:`nsim.io.rosbag.camera_from_info`).
-
-**Timestamps** are the messages' header stamps in integer nanoseconds (``sec * 10**9 +
-nanosec``), the time the data was taken. Only where a header stamp is zero does the message's bag
-(receive) time stand in; the stream's ``stamps_from_bag`` counts those messages and a warning
-names the topic. Per topic (per tf link for /tf) the stamps must increase in bag order. On /tf a
-repeated stamp of the same link is dropped (the first one is kept, as tf2 does).
-
-**Frames.** Frame ids lose a leading ``/`` (ROS 1's tf allowed one; tf2 does not). A transform
-``parent -> child`` on /tf or /tf_static is the child's pose in the parent, ``child_to_parent
-(4, 4)``. :meth:`TfTree.sensor_to_body` chains /tf_static links only; :meth:`RobotLog.body_trajectory`
-takes odom -> body from /tf or else from the Odometry topic. A path across several moving links
-(``map -> odom -> base_link`` read with ``odom_frame: map``) is sampled at the stamps of its densest
-link, the others interpolated (linear position, slerped rotation) and never extrapolated: stamps
-outside their span are dropped, as tf2 refuses them. An Odometry whose ``child_frame_id`` is empty
-(ROS 1 Stage's ground truth) is taken to give the body's pose (a warning says so).
+**Frames.** Frame ids lose a leading ``/`` (ROS 1's tf allowed one; tf2 does not). /tf and
+/tf_static become ``log.tf``, a :class:`~nsim.io.tf_tree.TfTree` (how links chain and how moving
+ones are sampled). :meth:`RobotLog.sensor_to_body` chains /tf_static links;
+:meth:`RobotLog.body_trajectory` takes odom -> body from /tf or else from the Odometry topic. An
+Odometry whose ``child_frame_id`` is empty (ROS 1 Stage's ground truth) is taken to give the body's
+pose (a warning says so).
 
 **Errors.** Bad input raises :class:`~nsim.errors.InputError` with one line that names the bag,
 the topic and, where one message is at fault, its index in the topic (0-based, bag order): a topic
@@ -72,10 +44,7 @@ from __future__ import annotations
 import difflib
 import logging
 import os
-from collections import deque
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -83,11 +52,19 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
-from nsim.geometry.transforms import invert_se3
+from nsim.io.bag_topics import TopicSummary, bag_paths, open_bag_reader
+from nsim.io.header_stamps import HeaderStamps
+from nsim.io.recording_streams import (
+    BODY_FRAMES,
+    CameraStream,
+    LidarStream,
+    MessageIndex,
+    Odometry,
+    Trajectory,
+)
 from nsim.io.rosbag import (
     DEPTH_ENCODINGS,
     IMAGE_ENCODINGS,
-    TYPESTORE,
     LidarPoints,
     camera_from_info,
     lidar_points,
@@ -96,6 +73,8 @@ from nsim.io.rosbag import (
     read_image,
     stamp_ns,
 )
+from nsim.io.tf_tree import MovingLink, StaticLink, TfTree
+from nsim.io.topic_selection import CameraTopics, Selection, default_stream_names
 
 log = logging.getLogger(__name__)
 
@@ -105,491 +84,6 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
-#: Last topic parts that name what a topic carries, not which sensor: dropped from default names.
-GENERIC_TOPIC_PARTS = ("image", "image_raw", "image_rect", "image_color", "image_mono", "image_rect_color",
-                       "image_rect_raw", "depth", "points", "points_raw", "cloud", "pointcloud", "point_cloud")
-#: Default body frames, tried in this order when neither the selection nor an Odometry names one.
-BODY_FRAMES = ("base_link", "body", "base_footprint")
-
-
-# ---------------------------------------------------------------------------- selection
-
-
-@dataclass(frozen=True)
-class CameraTopics:
-    """One camera's topics. info None: the CameraInfo in the image topic's namespace; rectified
-    None: guessed from the topic (last part starts with ``image_rect``)."""
-
-    image: str
-    info: str | None = None
-    rectified: bool | None = None
-
-
-@dataclass(frozen=True)
-class Selection:
-    """Which topics to read (see the module docstring); a group that is None gets the defaults."""
-
-    cameras: Mapping[str, CameraTopics] | None = None
-    depth: Mapping[str, CameraTopics] | None = None
-    lidar: Mapping[str, str] | None = None
-    odometry: str | None = None
-    tf: str | None = None
-    tf_static: str | None = None
-    body_frame: str | None = None
-    odom_frame: str | None = None
-
-    @classmethod
-    def from_data(cls, data: Any, where: str = "selection") -> Selection:
-        """Strict reading of plain data (parsed YAML): unknown keys and wrong types raise
-        :class:`InputError` naming ``where`` and the dotted key."""
-        if data is None:
-            return cls()
-        if not isinstance(data, Mapping):
-            raise InputError(f"{where}: expected a mapping, got {type(data).__name__}")
-        keys = ("cameras", "depth", "lidar", "odometry", "tf", "tf_static", "body_frame", "odom_frame")
-        check_keys(data, keys, where)
-        out: dict[str, Any] = {}
-        for group in ("cameras", "depth"):
-            if data.get(group) is not None:
-                out[group] = {name: _camera_topics(entry, f"{where}.{group}.{name}")
-                              for name, entry in _mapping(data[group], f"{where}.{group}").items()}
-        if data.get("lidar") is not None:
-            lidar = {}
-            for name, entry in _mapping(data["lidar"], f"{where}.lidar").items():
-                if isinstance(entry, Mapping):
-                    check_keys(entry, ("points",), f"{where}.lidar.{name}")
-                    entry = entry.get("points")
-                lidar[name] = _topic_name(entry, f"{where}.lidar.{name}")
-            out["lidar"] = lidar
-        for key in ("odometry", "tf", "tf_static"):
-            if data.get(key) is not None:
-                out[key] = _topic_name(data[key], f"{where}.{key}")
-        for key in ("body_frame", "odom_frame"):
-            if data.get(key) is not None:
-                if not isinstance(data[key], str) or not data[key].strip("/"):
-                    raise InputError(f"{where}.{key}: expected a frame name, got {data[key]!r}")
-                out[key] = data[key].lstrip("/")
-        return cls(**out)
-
-
-def load_selection(path: str | os.PathLike) -> Selection:
-    """A :class:`Selection` from a YAML file (strict; errors name the file and the dotted key)."""
-    import yaml
-
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
-    return Selection.from_data(data, str(path))
-
-
-def check_keys(data: Mapping, known: Sequence[str], where: str) -> None:
-    for key in data:
-        if key not in known:
-            close = difflib.get_close_matches(str(key), known, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})"
-            raise InputError(f"{where}: unknown key {key!r}{hint}")
-
-
-def _mapping(value: Any, where: str) -> Mapping:
-    if not isinstance(value, Mapping) or not all(isinstance(k, str) and k for k in value):
-        raise InputError(f"{where}: expected a mapping from names to topics, got {value!r}")
-    return value
-
-
-def _topic_name(value: Any, where: str) -> str:
-    if not isinstance(value, str) or not value.strip("/"):
-        raise InputError(f"{where}: expected a topic name, got {value!r}")
-    return "/" + value.lstrip("/")
-
-
-def _camera_topics(entry: Any, where: str) -> CameraTopics:
-    if isinstance(entry, str):
-        return CameraTopics(_topic_name(entry, where))
-    if not isinstance(entry, Mapping):
-        raise InputError(f"{where}: expected a topic or a mapping with image (and info, rectified), got {entry!r}")
-    check_keys(entry, ("image", "info", "rectified"), where)
-    if "image" not in entry:
-        raise InputError(f"{where}: missing key 'image'")
-    info = None if entry.get("info") is None else _topic_name(entry["info"], f"{where}.info")
-    rectified = entry.get("rectified")
-    if rectified is not None and not isinstance(rectified, bool):
-        raise InputError(f"{where}.rectified: expected true or false, got {rectified!r}")
-    return CameraTopics(_topic_name(entry["image"], f"{where}.image"), info, rectified)
-
-
-# ---------------------------------------------------------------------------- what is read
-
-
-@dataclass(frozen=True)
-class TopicSummary:
-    """A topic of the bag: its message type (None when its connections disagree) and message count."""
-
-    topic: str
-    msgtype: str | None
-    count: int
-
-
-@dataclass(frozen=True)
-class MessageIndex:
-    """Where a stream's messages lie in the bag, to read message ``i`` again.
-
-    log_time_ns: (N,) int64 bag (receive) times; connection: (N,) int64, index into the topic's
-    connections; rank: (N,) int64, the message's place among those of its connection with the
-    same bag time (0 unless several share it).
-    """
-
-    log_time_ns: np.ndarray
-    connection: np.ndarray
-    rank: np.ndarray
-
-
-@dataclass(frozen=True)
-class CameraStreamInfo:
-    """What a recording knows of one camera (or depth camera) stream, wherever its frames are held: a
-    bag's topic (:class:`CameraStream`) or a folder (``nsim.io.robot_folder.FolderCameraStream``).
-
-    name: the stream's name (its sensor in the rig); topic, info_topic: where its frames and its
-    camera info are; stamps_ns: (N,) int64 header stamps (see the module docstring); camera:
-    intrinsics of the frames as decoded (for depth, of the depth image); frame_id: the images' frame
-    (OpenCV axes by REP 103); encoding: the Image encoding, or the CompressedImage format string;
-    is_depth: frames come back as float32 metres (NaN = no measurement for 16UC1's 0; 32FC1 as recorded).
-    """
-
-    name: str
-    topic: str
-    info_topic: str
-    frame_id: str
-    camera: Camera
-    encoding: str
-    is_depth: bool
-    stamps_ns: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-
-@dataclass(frozen=True)
-class CameraStream(CameraStreamInfo):
-    """One camera (or depth camera) topic (:class:`CameraStreamInfo`). Frames are decoded on demand by
-    :meth:`RobotLog.image`. msgtype: the topic's message type; stamps_from_bag: how many stamps came
-    from the bag's receive times; messages: where each frame's message is."""
-
-    msgtype: str
-    stamps_from_bag: int
-    messages: MessageIndex
-
-
-@dataclass(frozen=True)
-class LidarStream:
-    """One PointCloud2 topic; clouds are read on demand by :meth:`RobotLog.cloud`.
-
-    stamps_ns: (N,) int64 header stamps; frame_id: the clouds' frame; fields: the first cloud's
-    field names, in their order.
-    """
-
-    name: str
-    topic: str
-    frame_id: str
-    fields: tuple[str, ...]
-    stamps_ns: np.ndarray
-    stamps_from_bag: int
-    messages: MessageIndex
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-
-@dataclass(frozen=True)
-class Odometry:
-    """A nav_msgs/Odometry topic, read whole.
-
-    stamps_ns: (N,) int64; child_to_parent: (N, 4, 4), the pose of ``child_frame_id`` (the body)
-    in ``frame_id`` (odom), i.e. body-in-odom; linear_mps, angular_radps: (N, 3) the twist, in
-    ``child_frame_id`` as ROS specifies.
-    """
-
-    topic: str
-    frame_id: str
-    child_frame_id: str
-    stamps_ns: np.ndarray
-    child_to_parent: np.ndarray
-    linear_mps: np.ndarray
-    angular_radps: np.ndarray
-    stamps_from_bag: int
-
-
-@dataclass(frozen=True)
-class StaticLink:
-    """A /tf_static transform: ``child_to_parent (4, 4)``, the child's pose in the parent."""
-
-    parent: str
-    child: str
-    child_to_parent: np.ndarray
-
-
-@dataclass(frozen=True)
-class MovingLink:
-    """A /tf link over time: stamps_ns (N,) int64 increasing, child_to_parent (N, 4, 4)."""
-
-    parent: str
-    child: str
-    stamps_ns: np.ndarray
-    child_to_parent: np.ndarray
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """The body's motion: stamps_ns (N,) int64, body_to_odom (N, 4, 4) (the body's pose in odom).
-
-    source: where it came from (``tf: odom -> body`` or ``odometry /odom``); body_frame is empty when
-    an Odometry without child_frame_id gave the poses and no body frame is known."""
-
-    stamps_ns: np.ndarray
-    body_to_odom: np.ndarray
-    odom_frame: str
-    body_frame: str
-    source: str
-
-
-@dataclass(frozen=True)
-class TfTree:
-    """The transforms of /tf_static (``static``, one per child frame, the last one sent) and /tf
-    (``moving``, one per parent -> child link)."""
-
-    static: tuple[StaticLink, ...] = ()
-    moving: tuple[MovingLink, ...] = ()
-
-    @property
-    def frames(self) -> set[str]:
-        """Every frame any link names."""
-        return {f for link in (*self.static, *self.moving) for f in (link.parent, link.child)}
-
-    def _path(self, source: str, target: str, with_moving: bool) -> list[tuple[StaticLink | MovingLink, bool]] | None:
-        """Links from ``source`` to ``target`` (breadth first, fewest links), each with True when
-        it is walked child -> parent; None if there is no path."""
-        neighbours: dict[str, list[tuple[str, StaticLink | MovingLink, bool]]] = {}
-        for link in (*self.static, *(self.moving if with_moving else ())):
-            neighbours.setdefault(link.child, []).append((link.parent, link, True))
-            neighbours.setdefault(link.parent, []).append((link.child, link, False))
-        previous: dict[str, tuple[str, StaticLink | MovingLink, bool] | None] = {source: None}
-        queue = deque([source])
-        while queue:
-            frame = queue.popleft()
-            if frame == target:
-                path = []
-                while previous[frame] is not None:
-                    before, link, upward = previous[frame]
-                    path.append((link, upward))
-                    frame = before
-                return path[::-1]
-            for nxt, link, upward in neighbours.get(frame, ()):
-                if nxt not in previous:
-                    previous[nxt] = (frame, link, upward)
-                    queue.append(nxt)
-        return None
-
-    def _no_link(self, source: str, target: str) -> InputError:
-        known = sorted({f for link in self.static for f in (link.parent, link.child)})
-        shown = ", ".join(known[:12]) + (", ..." if len(known) > 12 else "") if known else "none"
-        through = " (there is one only through moving /tf links)" if self._path(source, target, True) else ""
-        return InputError(f"tf: no link between {source!r} and {target!r}{through}; static frames: {shown}")
-
-    def static_transform(self, source: str, target: str) -> np.ndarray:
-        """``source_to_target (4, 4)`` through /tf_static links; InputError when there is no path."""
-        source, target = source.lstrip("/"), target.lstrip("/")
-        path = self._path(source, target, with_moving=False)
-        if path is None:
-            raise self._no_link(source, target)
-        out = np.eye(4)
-        for link, upward in path:
-            out = (link.child_to_parent if upward else invert_se3(link.child_to_parent)) @ out
-        return out
-
-    def sensor_to_body(self, frame_id: str, body_frame: str) -> np.ndarray:
-        """``sensor_to_body (4, 4)``: points in ``frame_id`` to ``body_frame``, chaining /tf_static links.
-
-        Raises ``InputError("tf: no link between 'X' and 'body' ...")`` when no static path joins them.
-        """
-        return self.static_transform(frame_id, body_frame)
-
-    def transforms_at(self, source: str, target: str, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``source_to_target`` at each of ``stamps_ns (N,)`` through /tf_static and /tf links.
-
-        Returns ``kept (N,)`` bool and ``source_to_target (K, 4, 4)`` at ``stamps_ns[kept]``. A
-        moving link is taken as sent at its own stamps and interpolated between them (linear
-        position, slerped rotation); a stamp outside a moving link's first..last stamp is not kept
-        (tf2 does not extrapolate either). InputError when no path joins the frames.
-        """
-        source, target = source.lstrip("/"), target.lstrip("/")
-        path = self._path(source, target, with_moving=True)
-        if path is None:
-            raise InputError(f"tf: no link between {source!r} and {target!r} in /tf or /tf_static")
-        return _compose(path, np.asarray(stamps_ns, dtype=np.int64))
-
-    def trajectory(self, odom_frame: str, body_frame: str) -> tuple[np.ndarray, np.ndarray]:
-        """``stamps_ns (N,)`` and ``body_to_odom (N, 4, 4)`` from /tf along the path from body to odom.
-
-        The stamps are those of the path's moving link with the most stamps (of equal ones, the
-        nearest the body: ``odom -> base_link`` on a ``map -> odom -> base_link`` tree read in
-        ``map``); the other moving links are interpolated at them and stamps outside their span
-        are dropped (see :meth:`transforms_at`); static links are composed in. InputError when
-        there is no path, when it has no moving link, or when no stamp lies in every moving
-        link's span.
-        """
-        odom_frame, body_frame = odom_frame.lstrip("/"), body_frame.lstrip("/")
-        path = self._path(body_frame, odom_frame, with_moving=True)
-        if path is None:
-            raise InputError(f"tf: no link between {body_frame!r} and {odom_frame!r} in /tf or /tf_static")
-        moving = [link for link, _ in path if isinstance(link, MovingLink)]
-        if not moving:
-            raise InputError(f"tf: the path from {odom_frame!r} to {body_frame!r} has no moving link (the body does "
-                             "not move in that frame)")
-        clock = max(moving, key=lambda link: len(link.stamps_ns))  # the first of equals: nearest the body
-        kept, body_to_odom = _compose(path, clock.stamps_ns)
-        if not kept.any():
-            spans = ", ".join(f"{link.parent} -> {link.child} {link.stamps_ns[0]}..{link.stamps_ns[-1]} ns"
-                              for link in moving)
-            raise InputError(f"tf: the moving links from {odom_frame!r} to {body_frame!r} share no time ({spans})")
-        if not kept.all():
-            log.info("tf %s -> %s: %d of %d stamps of %s -> %s lie outside another moving link's span; dropped",
-                     odom_frame, body_frame, int((~kept).sum()), len(kept), clock.parent, clock.child)
-        return clock.stamps_ns[kept], body_to_odom
-
-
-def _link_at(link: MovingLink, stamps_ns: np.ndarray) -> np.ndarray:
-    """``child_to_parent (N, 4, 4)`` of a moving link at stamps inside its span: its own matrices at
-    its own stamps, interpolated between them (:func:`nsim.crowd.scenario.interpolate_poses`)."""
-    from nsim.geometry.transforms import interpolate_poses
-
-    at = np.clip(np.searchsorted(link.stamps_ns, stamps_ns), 0, len(link.stamps_ns) - 1)
-    exact = link.stamps_ns[at] == stamps_ns
-    out = link.child_to_parent[at]
-    if not exact.all():
-        t0 = link.stamps_ns[0]  # seconds from the first stamp keep float64's resolution
-        out[~exact] = interpolate_poses((link.stamps_ns - t0) / 1e9, link.child_to_parent,
-                                        (stamps_ns[~exact] - t0) / 1e9)
-    return out
-
-
-def _compose(path: list[tuple[StaticLink | MovingLink, bool]], stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``kept (N,)`` and the path's ``source_to_target (K, 4, 4)`` at ``stamps_ns[kept]`` (see
-    :meth:`TfTree.transforms_at`)."""
-    kept = np.ones(len(stamps_ns), dtype=bool)
-    for link, _ in path:
-        if isinstance(link, MovingLink):
-            kept &= (stamps_ns >= link.stamps_ns[0]) & (stamps_ns <= link.stamps_ns[-1])
-    at = stamps_ns[kept]
-    out = np.broadcast_to(np.eye(4), (len(at), 4, 4)).copy()
-    for link, upward in path:
-        step = _link_at(link, at) if isinstance(link, MovingLink) else link.child_to_parent
-        out = (step if upward else invert_se3(step)) @ out
-    return kept, out
-
-
-# ---------------------------------------------------------------------------- association
-
-
-def associate(stamps_a_ns: np.ndarray, stamps_b_ns: np.ndarray, tolerance_ns: int) -> np.ndarray:
-    """Index pairs ``(K, 2)`` int64 ``[i, j]`` matching ``stamps_a_ns[i]`` with ``stamps_b_ns[j]``.
-
-    Nearest first, unique, within the tolerance: every pair with ``|a_i - b_j| <= tolerance_ns``
-    is a candidate; candidates are taken in order of increasing ``|a_i - b_j|`` (ties: smaller
-    ``i``, then smaller ``j``) unless ``i`` or ``j`` is already taken. So each stamp is used at
-    most once, a pair is never farther apart than the tolerance, and where two stamps want the
-    same partner the nearer one gets it (the other may get its second choice). Rows are sorted by
-    ``i``. Stamps are integer nanoseconds, 1-D, in any order.
-    """
-    a, b = np.asarray(stamps_a_ns), np.asarray(stamps_b_ns)
-    for name, x in (("stamps_a_ns", a), ("stamps_b_ns", b)):
-        if x.ndim != 1 or not (np.issubdtype(x.dtype, np.integer) or x.size == 0):
-            raise ValueError(f"{name}: expected 1-D integer nanoseconds, got {x.dtype} {x.shape}")
-    if isinstance(tolerance_ns, bool) or not isinstance(tolerance_ns, int | np.integer) or tolerance_ns < 0:
-        raise ValueError(f"tolerance_ns: expected an integer >= 0, got {tolerance_ns!r}")
-    a, b = a.astype(np.int64), b.astype(np.int64)
-    order_b = np.argsort(b, kind="stable")
-    sorted_b = b[order_b]
-    lo = np.searchsorted(sorted_b, a - tolerance_ns, side="left")
-    hi = np.searchsorted(sorted_b, a + tolerance_ns, side="right")
-    counts = hi - lo
-    ii = np.repeat(np.arange(len(a)), counts)
-    jj = order_b[np.repeat(lo, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
-    gap = np.abs(a[ii] - b[jj])
-    taken_a, taken_b = np.zeros(len(a), bool), np.zeros(len(b), bool)
-    pairs = []
-    for k in np.lexsort((jj, ii, gap)):
-        i, j = ii[k], jj[k]
-        if not (taken_a[i] or taken_b[j]):
-            taken_a[i] = taken_b[j] = True
-            pairs.append((i, j))
-    out = np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
-    return out
-
-
-# ---------------------------------------------------------------------------- the reader
-
-
-def _bag_paths(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[Path]:
-    """The paths AnyReader wants: ROS 1 ``.bag`` files, or one ROS 2 bag directory."""
-    items = [paths] if isinstance(paths, str | os.PathLike) else list(paths)
-    if not items:
-        raise InputError("bag: no path given")
-    out = []
-    for item in items:
-        path = Path(item)
-        if not os.path.lexists(path):
-            raise InputError(f"bag {path}: does not exist")
-        if path.is_file() and path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
-            path = path.parent  # the storage file of a ROS 2 bag: read the bag
-        out.append(path)
-    ros1 = [p.suffix == ".bag" for p in out]
-    if len(out) > 1 and not all(ros1):
-        raise InputError(f"bag {out[0]}: several paths must all be ROS 1 .bag files (a ROS 2 bag is one directory)")
-    return out
-
-
-def list_topics(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> dict[str, TopicSummary]:
-    """Every topic of a bag with its message type and count, without reading messages."""
-    bag_paths = _bag_paths(paths)
-    reader = _open_reader(bag_paths, str(bag_paths[0]))
-    try:
-        return {name: TopicSummary(name, info.msgtype, info.msgcount) for name, info in reader.topics.items()}
-    finally:
-        reader.close()
-
-
-def _open_reader(paths: list[Path], name: str) -> AnyReader:
-    try:
-        reader = AnyReader(paths, default_typestore=TYPESTORE)
-        reader.open()
-    except (AnyReaderError, OSError, ValueError, KeyError) as exc:
-        raise InputError(f"bag {name}: not a readable ROS bag: {' '.join(str(exc).split())}") from None
-    return reader
-
-
-class _Stamps:
-    """Header stamps of one topic (or tf link) as they come, checked to increase."""
-
-    def __init__(self) -> None:
-        self.stamps: list[int] = []
-        self.from_bag = 0
-
-    def add(self, header_stamp_ns: int, log_time_ns: int, where: str, strict: bool = True) -> bool:
-        """Append; returns False for a repeated stamp when not ``strict`` (the message is dropped)."""
-        t = header_stamp_ns
-        if t == 0:
-            t = log_time_ns
-            self.from_bag += 1
-        if self.stamps and t <= self.stamps[-1]:
-            if not strict and t == self.stamps[-1]:
-                return False
-            raise InputError(f"{where}: header stamp {t} ns is not after the previous message's "
-                             f"{self.stamps[-1]} ns (stamps must increase)")
-        self.stamps.append(t)
-        return True
 
 
 class _Topic:
@@ -597,7 +91,7 @@ class _Topic:
 
     def __init__(self, topic: str) -> None:
         self.topic = topic
-        self.stamps = _Stamps()
+        self.stamps = HeaderStamps()
         self.log_times: list[int] = []
         self.connection: list[int] = []
         self.rank: list[int] = []
@@ -635,9 +129,9 @@ class RobotLog:
                  selection: Selection | Mapping | None = None):
         if selection is not None and not isinstance(selection, Selection):
             selection = Selection.from_data(selection)
-        self.paths = _bag_paths(paths)
+        self.paths = bag_paths(paths)
         self.name = str(self.paths[0]) + (f" (+{len(self.paths) - 1} more)" if len(self.paths) > 1 else "")
-        self._reader: AnyReader | None = _open_reader(self.paths, self.name)
+        self._reader: AnyReader | None = open_bag_reader(self.paths, self.name)
         try:
             self._connections = {name: list(info.connections) for name, info in self._reader.topics.items()}
             self.topics = {name: TopicSummary(name, info.msgtype, info.msgcount)
@@ -730,7 +224,7 @@ class RobotLog:
             found[topic] = (base, info, is_depth)
         out: tuple[dict[str, CameraTopics], dict[str, CameraTopics]] = ({}, {})
         for group, want_depth in zip(out, (False, True), strict=True):
-            names = _default_names({t: base for t, (base, _, d) in found.items() if d == want_depth})
+            names = default_stream_names({t: base for t, (base, _, d) in found.items() if d == want_depth})
             for topic, name in names.items():
                 group[name] = CameraTopics(topic, found[topic][1])
         return out
@@ -757,7 +251,7 @@ class RobotLog:
                 group[name] = CameraTopics(entry.image, info, rectified)
         if sel.lidar is None:
             points = self._of_type([POINT_CLOUD])
-            names = _default_names({t: t for t in points})
+            names = default_stream_names({t: t for t in points})
             lidar = {names[t]: t for t in points}
         else:
             lidar = {name: self._require(topic, (POINT_CLOUD,), f"lidar.{name}") for name, topic in sel.lidar.items()}
@@ -800,7 +294,7 @@ class RobotLog:
         counts = dict.fromkeys(kinds, 0)
         odom: dict[str, list] = {"pose": [], "linear": [], "angular": []}
         static: dict[str, StaticLink] = {}
-        moving: dict[tuple[str, str], tuple[_Stamps, list[np.ndarray]]] = {}
+        moving: dict[tuple[str, str], tuple[HeaderStamps, list[np.ndarray]]] = {}
         connections = [c for topic in kinds for c in self._connections[topic]]
         for conn, log_time, raw in (self._messages(connections) if connections else ()):
             topic = conn.topic
@@ -849,7 +343,7 @@ class RobotLog:
                     if kind == "tf_static":
                         static[child] = StaticLink(parent, child, pose)
                         continue
-                    stamps, poses = moving.setdefault((parent, child), (_Stamps(), []))
+                    stamps, poses = moving.setdefault((parent, child), (HeaderStamps(), []))
                     if stamps.add(stamp_ns(tr.header), log_time, f"{where} ({parent} -> {child})", strict=False):
                         poses.append(pose)
 
@@ -1092,26 +586,3 @@ def _pose(transform, where: str) -> np.ndarray:
     except ValueError as exc:
         raise InputError(f"{where}: {exc}") from None
 
-
-def _default_names(bases: Mapping[str, str]) -> dict[str, str]:
-    """Default stream names from topics (``bases``: topic -> the topic that names it)."""
-
-    def short(base: str) -> str:
-        parts = [p for p in base.split("/") if p]
-        if len(parts) > 1 and parts[-1] in GENERIC_TOPIC_PARTS:
-            parts = parts[:-1]
-        return "_".join(parts)
-
-    def full(base: str) -> str:
-        return "_".join(p for p in base.split("/") if p)
-
-    names = {t: short(b) for t, b in bases.items()}
-    clash = {n for n in names.values() if list(names.values()).count(n) > 1}
-    names = {t: full(bases[t]) if names[t] in clash else names[t] for t in bases}
-    seen: dict[str, int] = {}
-    for t in sorted(names):
-        n = names[t]
-        seen[n] = seen.get(n, 0) + 1
-        if seen[n] > 1:
-            names[t] = f"{n}_{seen[n]}"
-    return names

@@ -33,7 +33,8 @@ from nsim.io.tum import Trajectory, read_tum, write_tum
 from nsim.metrics.trajectory import DEFAULT_MAX_DT_S, AteResult, ate
 
 if TYPE_CHECKING:  # pycolmap is imported only when SLAM runs (after cv2, see nsim.sfm.colmap)
-    from nsim.sfm.colmap import SfmOptions, SfmStats
+    from nsim.sfm.colmap import SfmStats
+    from nsim.sfm.options import SfmOptions
 
 #: What a SLAM run starts from: a folder of frames, or the frames themselves ((H, W, 3) uint8 RGB).
 Frames = str | os.PathLike | Sequence[np.ndarray]
@@ -120,12 +121,13 @@ def run_colmap_slam(
 
     frames: a folder (every JPG/PNG in name order, or ``image_names``) or a list of (H, W, 3) uint8
     RGB images (written to ``work_dir/images``). timestamps_s: one per frame in that order, or a
-    mapping frame name -> seconds. options: ``nsim.sfm.colmap.SfmOptions`` (default: its defaults).
+    mapping frame name -> seconds. options: ``nsim.sfm.options.SfmOptions`` (default: its defaults).
     Writes ``work_dir/trajectory.tum`` (cam_to_world, OpenCV camera axes, the reconstruction's own
     frame and scale). Raises InputError for mismatched timestamps, unreadable frames, or too few
     registered frames (``options.min_registered_fraction``).
     """
-    from nsim.sfm.colmap import SfmOptions, run_sfm  # imports cv2 before pycolmap
+    from nsim.sfm.colmap import run_sfm  # imports cv2 before pycolmap
+    from nsim.sfm.options import SfmOptions
 
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)

@@ -80,15 +80,7 @@ from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.geometry.conventions import principal_point_from_colmap, principal_point_to_colmap
 from nsim.geometry.transforms import invert_se3
-from nsim.sfm.options import (  # noqa: F401  (re-exported: SfmOptions and its constants live there)
-    CAMERA_MODELS,
-    DEFAULT_HFOV_GUESSES_DEG,
-    DEVICES,
-    FISHEYE_MODELS,
-    MATCHERS,
-    PP_REFINE_CHOICES,
-    SfmOptions,
-)
+from nsim.sfm.options import FISHEYE_MODELS, SfmOptions
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,6 @@
 """How to run SfM: :class:`SfmOptions`, the one definition of every SfM setting and its bounds.
 
-``nsim.sfm.colmap.run_sfm`` takes these options (and re-exports them: ``from nsim.sfm.colmap import
-SfmOptions`` keeps working). The stage configs that pass SfM settings on, ``reconstruct``'s
+``nsim.sfm.colmap.run_sfm`` takes these options. The stage configs that pass SfM settings on, ``reconstruct``'s
 ``Config`` and ``evaluate``'s ``slam`` section, declare their fields with
 ``nsim.config.param_from(SfmOptions, name)``, so their bounds, choices and help are these.
 

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import shutil
 import time
 from pathlib import Path
@@ -43,10 +42,11 @@ from typing import Any
 
 import numpy as np
 
-from nsim.config import from_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.rendering.baked import BakeConfig
+from nsim.io import atomic_path
+from nsim.rendering.bake_bricks import BakeConfig
+from nsim.stages.runner import SceneInputs, cached, device_kind, rerun, resolve_scene
 
 STAGE = "bake"
 VERSION = 1
@@ -56,16 +56,7 @@ PART_RAYS = 1 << 18  # surface: training rays the NeRF renders per resume part
 log = logging.getLogger(__name__)
 
 Config = BakeConfig
-
-
-@dataclasses.dataclass(frozen=True)
-class Inputs:
-    """scene: a scene-checkpoint id, prefix or ref."""
-
-    scene: str
-
-    def ids(self) -> dict[str, str]:
-        return {"scene": self.scene}
+Inputs = SceneInputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,17 +64,6 @@ class Outputs:
     baked: str
     cache_hit: bool = False
     parts_reused: int = 0
-
-
-def resolve_scene(spec: str, ctx: RunContext) -> str:
-    store = ctx.store
-    art_id = store.resolve(spec)
-    kind = store.get(art_id).kind
-    if kind != "scene-checkpoint":
-        raise InputError(f"bake {spec}: a {kind} artifact; bake needs a scene-checkpoint (nsim train-scene)")
-    if not store.get(art_id).file("occupancy_grid.npy").is_file():
-        raise InputError(f"bake {spec}: scene {art_id[:12]} has no occupancy_grid.npy to bake over")
-    return art_id
 
 
 def training_frames(scene_id: str, ctx: RunContext, setting: str = "cull_weight") -> tuple[list, list[Path]]:
@@ -124,16 +104,14 @@ def training_images(frames: list, paths: list[Path]) -> list[np.ndarray]:
 
 
 def _save_part(path: Path, arr) -> None:
-    """One resume part, written whole or not at all (a temp file renamed)."""
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
+    """One resume part, written whole or not at all (``nsim.io.atomic_path``)."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # a file object: np.save would append .npy to the name
         np.save(fh, arr.cpu().numpy(), allow_pickle=False)
-    os.replace(tmp, path)
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
-    device = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
-    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra={"device": device})
+    return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed,
+                                extra={"device": device_kind(ctx.device)})
 
 
 def resume_dir(ctx: RunContext, key: str) -> Path:
@@ -145,14 +123,14 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     import torch
 
     from nsim.rendering import OccupancyGrid, load_model
-    from nsim.rendering.baked import bake_passes, bake_surface, evaluate_lattice, nerf_targets
+    from nsim.rendering.bake_bricks import bake_passes, bake_surface, evaluate_lattice, nerf_targets
 
     store = ctx.store
-    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
+    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx, STAGE, files=("occupancy_grid.npy",)))
     cfg.check()
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(baked=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(baked=hit, cache_hit=True)
 
     art = store.get(inputs.scene)
     t0 = time.perf_counter()
@@ -226,6 +204,4 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(Inputs(scene=manifest["inputs"]["scene"]), cfg, ctx).baked
+    return rerun(run, Inputs(scene=manifest["inputs"]["scene"]), Config, manifest, ctx).baked

@@ -43,9 +43,10 @@ from typing import Any
 
 import numpy as np
 
-from nsim.config import from_dict, param, to_dict
+from nsim.config import param, to_dict
 from nsim.context import RunContext
 from nsim.io.canonical import round_decimals
+from nsim.stages.runner import cached, rerun
 from nsim.synth.phone import PhoneConfig
 from nsim.synth.robot_log import RobotLogFaults
 from nsim.synth.room import ROOM_PRESETS
@@ -141,8 +142,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
     record = recorded_config(cfg)
     key = store.action_key(STAGE, VERSION, record, inputs.ids(), seed=ctx.seed)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(capture=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(capture=hit, cache_hit=True)
     if cfg.actor:
         from nsim.synth.actor_capture import render_actor_capture
 
@@ -190,9 +191,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(Inputs(), cfg, ctx).capture
+    return rerun(run, Inputs(), Config, manifest, ctx).capture
 
 
 # ---------------------------------------------------------------------------------- a robot's log

@@ -38,10 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from nsim.config import from_dict, param
+from nsim.config import param
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.export.extract import MeshConfig, PointsConfig
+from nsim.stages.runner import SceneInputs, cached, device_kind, rerun, resolve_scene
 
 STAGE = "export"
 VERSION = 1
@@ -57,29 +58,13 @@ class Config:
     preview_max_points: int = param(20000, ge=100, help="points / faces drawn in preview.png")
 
 
-@dataclasses.dataclass(frozen=True)
-class Inputs:
-    """scene: a scene-checkpoint id, prefix or ref."""
-
-    scene: str
-
-    def ids(self) -> dict[str, str]:
-        return {"scene": self.scene}
+Inputs = SceneInputs
 
 
 @dataclasses.dataclass(frozen=True)
 class Outputs:
     export: str
     cache_hit: bool = False
-
-
-def resolve_scene(spec: str, ctx: RunContext) -> str:
-    store = ctx.store
-    art_id = store.resolve(spec)
-    kind = store.get(art_id).kind
-    if kind != "scene-checkpoint":
-        raise InputError(f"export {spec}: a {kind} artifact; export needs a scene-checkpoint (nsim train-scene)")
-    return art_id
 
 
 # libraries whose version can change the files' bytes (the workspace's fingerprint covers torch and numpy)
@@ -89,10 +74,9 @@ LIBRARIES = ("scikit-image", "scipy", "trimesh", "plyfile", "matplotlib")
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     from importlib import metadata
 
-    device = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
     versions = {name: metadata.version(name) for name in LIBRARIES}
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed,
-                                extra={"device": device, "libraries": versions})
+                                extra={"device": device_kind(ctx.device), "libraries": versions})
 
 
 def training_views(ctx: RunContext, scene_id: str, view_stride: int) -> tuple[str, list[tuple[int, Any, np.ndarray]]]:
@@ -122,10 +106,10 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     from nsim.rendering import OccupancyGrid, load_model
 
     store = ctx.store
-    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx))
+    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx, STAGE))
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(export=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(export=hit, cache_hit=True)
 
     art = store.get(inputs.scene)
     poses_id, views = training_views(ctx, inputs.scene, cfg.points.view_stride)
@@ -209,6 +193,4 @@ def _bounds(xyz: np.ndarray) -> list[list[float]] | None:
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(Inputs(scene=manifest["inputs"]["scene"]), cfg, ctx).export
+    return rerun(run, Inputs(scene=manifest["inputs"]["scene"]), Config, manifest, ctx).export

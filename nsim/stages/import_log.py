@@ -45,6 +45,7 @@ from nsim.config import param
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.io.recording_output import kept_frames, write_recording
+from nsim.stages.runner import cached, rerun
 
 STAGE = "import-log"
 VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
@@ -67,7 +68,7 @@ class Config:
 class Inputs:
     """log: one ROS 2 bag directory (or its .db3 / .mcap), one or more ROS 1 .bag files (a split
     recording), or one recording folder (``nsim.io.robot_folder``); selection: a YAML choosing a
-    bag's topics (``nsim.io.robot_log.Selection``)."""
+    bag's topics (``nsim.io.topic_selection.Selection``)."""
 
     log: tuple[Path, ...]
     selection: Path | None = None
@@ -122,7 +123,8 @@ def open_log(inputs: Inputs):
     """The reader of the log: a :class:`~nsim.io.robot_folder.RobotFolder` for a recording folder, else a
     :class:`~nsim.io.robot_log.RobotLog`; both have the interface ``run`` uses (a context manager)."""
     from nsim.io.robot_folder import RobotFolder
-    from nsim.io.robot_log import RobotLog, load_selection
+    from nsim.io.robot_log import RobotLog
+    from nsim.io.topic_selection import load_selection
 
     if inputs.is_folder():
         return RobotFolder(Path(inputs.log[0]))
@@ -142,8 +144,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     inputs.validate()
     store = ctx.store
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(recording=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(recording=hit, cache_hit=True)
     t0 = time.perf_counter()
     with open_log(inputs) as rl:
         streams = _streams(rl)
@@ -185,7 +187,6 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     """Re-import the log the recording was imported from, where it was read (the manifest's ``timing.source``),
     if it is still there with the same content; the workspace does not hold the log itself."""
-    from nsim.config import from_dict
 
     source = manifest.get("timing", {}).get("source")
     if not isinstance(source, dict) or not source.get("log"):
@@ -200,5 +201,4 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     inputs = Inputs(log=paths, selection=selection)
     if log_digests(inputs) != source.get("files"):
         raise InputError(f"{paths[0]}: the robot log has changed since this recording was imported from it")
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(inputs, from_dict(Config, manifest["config"]), ctx).recording
+    return rerun(run, inputs, Config, manifest, ctx).recording

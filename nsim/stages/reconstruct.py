@@ -48,10 +48,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nsim.config import from_dict, param, param_from
+from nsim.config import param, param_from
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.sfm.options import SfmOptions
+from nsim.stages.runner import cached, device_kind, rerun
 
 if TYPE_CHECKING:
     from nsim.sfm.imported import ImportPlan
@@ -185,7 +186,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     inputs.validate()
     if inputs.capture is not None:
         ctx.store.resolve(inputs.capture, kind="capture")
-    device = "cpu" if inputs.import_transforms is not None else ("cuda" if ctx.device.startswith("cuda") else "cpu")
+    device = "cpu" if inputs.import_transforms is not None else device_kind(ctx.device)
     plan = None
     if inputs.import_transforms is not None:
         from nsim.sfm.imported import plan_import
@@ -193,8 +194,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         plan = plan_import(Path(inputs.import_transforms), inputs.images_root, inputs.skip_missing)
     files = file_digests(inputs, None if plan is None else plan.digest())
     key = action_key(inputs, cfg, ctx, device, files)
-    if not ctx.force and (hit := ctx.store.lookup(key)) is not None:
-        return Outputs(poses=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(poses=hit, cache_hit=True)
     if plan is not None:
         from nsim.sfm.imported import check_import
 
@@ -277,11 +278,9 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
                              "reconstruct on it with --force to compare")
     scale = summary.get("scale_inputs", {})
     kd = scale.get("known_distance")
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
     inputs = Inputs(capture=manifest["inputs"].get("capture"), known_distance=tuple(kd) if kd else None,
                     camera_height_m=scale.get("camera_height_m"), metric=bool(scale.get("metric")), **paths)
     if file_digests(inputs) != files:
         changed = sorted(n for n, d in file_digests(inputs).items() if files.get(n) != d)
         raise InputError(f"{paths[changed[0]]}: the {changed[0]} has changed since this poses artifact was made from it")
-    return run(inputs, cfg, ctx).poses
+    return rerun(run, inputs, Config, manifest, ctx).poses

@@ -6,8 +6,8 @@ camera, evenly spaced over the frames inside the odometry's time span, are local
 scene's sparse model (``nsim.sfm.localize``); the odometry trajectory is then registered to them
 (``nsim.sfm.register.register_trajectory``): a robust rigid (or similarity) fit with the cameras'
 clock offset, then, with ``refine_drift``, a pose graph that bends the odometry onto the localised
-frames (``nsim.sfm.register.refine_drift``). Everything cheap is checked before any image is read:
-the artifacts' kinds, the sparse model, a metric scene, the camera names and models. A recording
+frames (``nsim.sfm.drift_refinement.refine_drift``). Everything cheap is checked before any image is
+read: the artifacts' kinds, the sparse model, a metric scene, the camera names and models. A recording
 that cannot be registered (too few frames localised, no agreement, a residual over the limits) is
 one line saying why, exit 2, nothing published.
 
@@ -40,12 +40,14 @@ from typing import Any
 
 import numpy as np
 
-from nsim.config import from_dict, param
+from nsim.config import param
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.sfm import localize as loc_defaults
-from nsim.sfm.register import DriftModel, RegisterOptions
+from nsim.sfm.drift_refinement import DriftModel
 from nsim.sfm.registration_output import write_registration
+from nsim.sfm.registration_types import RegisterOptions
+from nsim.stages.runner import cached, rerun
 
 STAGE = "register-log"
 VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
@@ -232,8 +234,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
     inputs = resolve_inputs(inputs, ctx)
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(registration=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(registration=hit, cache_hit=True)
     plan = check_inputs(inputs, cfg, ctx)
     rec, poses = store.get(inputs.recording), store.get(inputs.poses)
     t0 = time.perf_counter()
@@ -272,6 +274,4 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(Inputs(**manifest["inputs"]), cfg, ctx).registration
+    return rerun(run, Inputs(**manifest["inputs"]), Config, manifest, ctx).registration

@@ -68,6 +68,7 @@ from nsim.crowd.sensors import scene_sensors
 from nsim.crowd.social_force import ForceParams
 from nsim.crowd.sweep import SweepSpec
 from nsim.errors import NsimError
+from nsim.stages.runner import cached, device_kind, rerun
 
 STAGE = "simulate"
 VERSION = 4  # 2: run.mp4 in H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded (nsim.io.canonical)
@@ -165,7 +166,7 @@ def rollout_seed(ctx: RunContext, sc) -> int:
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     extra = {"scenario": inputs.scenario.digest}  # it covers robot.sensors (the resolved rig, names, rate)
     if inputs.scenario.robot.sensors is not None:  # rendered frames also depend on the device
-        extra["device"] = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
+        extra["device"] = device_kind(ctx.device)
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
@@ -173,8 +174,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
     sc = inputs.scenario
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(trajectory=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(trajectory=hit, cache_hit=True)
 
     dt_s, duration_s = effective_times(sc, cfg)
     cam = scene_sensors(sc, store, ctx.device)  # robot.sensors: the scene rendered without people
@@ -298,6 +299,4 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
         source=f"artifact {art.short} scenario.json",
         store=ctx.store,
     )
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(Inputs(sc), cfg, ctx).trajectory
+    return rerun(run, Inputs(sc), Config, manifest, ctx).trajectory

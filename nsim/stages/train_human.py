@@ -38,9 +38,9 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from nsim.config import from_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
+from nsim.stages.runner import cached, device_kind, rerun
 from nsim.train.human import TrainHumanConfig
 from nsim.train.human_data_video import PERSON_BVH_FILE, PERSON_FIT_FILE, PersonSource, prepare_person_data
 
@@ -116,7 +116,7 @@ def resolve(inputs: Inputs, ctx: RunContext) -> tuple[Inputs, Path]:
 def action_key(inputs: Inputs, root: Path, cfg: Config, ctx: RunContext) -> str:
     from nsim.workspace.store import sha256_file
 
-    extra: dict[str, Any] = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
+    extra: dict[str, Any] = {"device": device_kind(ctx.device)}
     if inputs.folder is not None:
         extra["data_digest"] = _digest_dir(root)
     if inputs.person is not None:
@@ -147,8 +147,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
     inputs, root = resolve(inputs, ctx)
     key = action_key(inputs, root, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(human=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(human=hit, cache_hit=True)
     person_report = None
     if inputs.person is not None:  # masks and poses found in the frames, written as a human data folder
         root = store.root / "tmp" / f"{STAGE}.{key[:24]}.person"
@@ -189,6 +189,4 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     if "capture" not in ids:
         raise InputError("this human checkpoint was trained from a folder, which the workspace does not hold: "
                          "rerun nsim train-human --data on it with --force to compare")
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(Inputs(capture=ids["capture"], scene=ids.get("scene")), cfg, ctx).human
+    return rerun(run, Inputs(capture=ids["capture"], scene=ids.get("scene")), Config, manifest, ctx).human

@@ -58,6 +58,7 @@ from typing import Any
 from nsim.config import from_dict, to_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
+from nsim.stages.runner import cached, device_kind, rerun
 from nsim.train.scene import TrainSceneConfig
 from nsim.train.scene_data import RecordingConfig
 from nsim.workspace.store import is_id
@@ -100,11 +101,6 @@ class Outputs:
     cache_hit: bool = False
     train_seconds: float | None = None
     resumed_from: int | None = None
-
-
-def device_kind(device: str) -> str:
-    """What of the device enters the action key: ``cpu`` or ``cuda`` (not the index)."""
-    return "cuda" if str(device).startswith("cuda") else "cpu"
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
@@ -153,8 +149,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
         reg, rec = resolve_registration(inputs.registration, src.id, ctx)
     inputs = dataclasses.replace(inputs, poses=src.id, registration=reg.id if reg is not None else None)
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(scene=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(scene=hit, cache_hit=True)
 
     data = SceneData.load(src.path, max_image_side=cfg.data.max_image_side, scale=cfg.data.scale)
     record = None
@@ -230,10 +226,8 @@ def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind:
 
 
 def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
-    cfg = from_dict(Config, manifest["config"])
     inputs = Inputs(poses=manifest["inputs"]["poses"], registration=manifest["inputs"].get("registration"))
     if inputs.registration is not None:  # the options are scene.json's record
         rec = json.loads(ctx.store.get(manifest["id"]).file("scene.json").read_text())["recording"]
         inputs = dataclasses.replace(inputs, recording=from_dict(RecordingConfig, rec["options"]))
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(inputs, cfg, ctx).scene
+    return rerun(run, inputs, Config, manifest, ctx).scene

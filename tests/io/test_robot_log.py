@@ -16,16 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.geometry import Camera, make_se3
-from nsim.io.robot_log import (
-    CameraTopics,
-    RobotLog,
-    Selection,
-    StaticLink,
-    TfTree,
-    associate,
-    list_topics,
-    load_selection,
-)
+from nsim.io.bag_topics import list_topics
+from nsim.io.header_stamps import associate
+from nsim.io.robot_log import RobotLog
 from nsim.io.rosbag import (
     ROS1_TYPESTORE,
     TYPESTORE,
@@ -42,6 +35,8 @@ from nsim.io.rosbag import (
     read_image,
     read_pointcloud,
 )
+from nsim.io.tf_tree import StaticLink, TfTree
+from nsim.io.topic_selection import CameraTopics, Selection, load_selection
 from nsim.sensors import Rig
 
 FORMATS = ("sqlite3", "mcap", "ros1")
@@ -580,7 +575,7 @@ def test_tf_repeats_and_ordering(tmp_path):
 
 def test_trajectory_across_moving_links():
     a, b = make_se3(np.eye(3), np.ones(3)), make_se3(np.eye(3), np.zeros(3))
-    from nsim.io.robot_log import MovingLink
+    from nsim.io.tf_tree import MovingLink
 
     stamps = np.array([1, 2])
     tree = TfTree((StaticLink("body", "cam", a),),

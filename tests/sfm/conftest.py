@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from nsim.geometry.cameras import Camera
-from nsim.sfm.colmap import SfmOptions, SfmResult, run_sfm
+from nsim.sfm.colmap import SfmResult, run_sfm
+from nsim.sfm.options import SfmOptions
 from tests.sfm.scene import handheld_loop, render_sequence
 
 N_VIEWS = 30

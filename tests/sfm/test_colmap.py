@@ -19,7 +19,6 @@ from nsim.sfm.align import (
     scale_from_camera_height,
 )
 from nsim.sfm.colmap import (
-    SfmOptions,
     camera_from_colmap,
     camera_to_colmap,
     initial_focal_px,
@@ -27,6 +26,7 @@ from nsim.sfm.colmap import (
     transform_result,
     write_model,
 )
+from nsim.sfm.options import SfmOptions
 from tests.sfm.scene import room_diagonal_m
 
 CAMERAS = [

@@ -11,12 +11,12 @@ from PIL import Image
 
 from nsim.geometry.cameras import Camera
 from nsim.io.images import to_uint8, write_image
-from nsim.sfm.colmap import SfmOptions, initial_focal_px, run_sfm
+from nsim.sfm.colmap import initial_focal_px, run_sfm
 from nsim.sfm.frames import exif_focal_35mm, exif_hfov_deg
-
-synth_room = pytest.importorskip("nsim.synth.room")
-synth_path = pytest.importorskip("nsim.synth.path")
-synth_oracle = pytest.importorskip("nsim.synth.oracle")
+from nsim.sfm.options import SfmOptions
+from nsim.synth import oracle as synth_oracle
+from nsim.synth import path as synth_path
+from nsim.synth import room as synth_room
 
 
 def _jpeg(path, focal_35mm=None, size=(64, 48)):

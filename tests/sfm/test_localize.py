@@ -21,8 +21,9 @@ from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.geometry.transforms import invert_se3, rotation_angle_deg
 from nsim.io.images import to_uint8, write_image
-from nsim.sfm.colmap import SfmOptions, colmap_log_level, run_sfm
+from nsim.sfm.colmap import colmap_log_level, run_sfm
 from nsim.sfm.localize import SceneIndex, build_scene_index, localize, retrieve
+from nsim.sfm.options import SfmOptions
 from nsim.synth.oracle import RoomOracle
 from nsim.synth.path import handheld_path, handheld_path_at
 from nsim.synth.room import make_room

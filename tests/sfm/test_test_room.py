@@ -12,11 +12,11 @@ import pytest
 from nsim.geometry.cameras import Camera
 from nsim.io.images import to_uint8, write_image
 from nsim.sfm.align import fit_sim3, gravity_align, pose_errors
-from nsim.sfm.colmap import SfmOptions, run_sfm
-
-synth_room = pytest.importorskip("nsim.synth.room")
-synth_path = pytest.importorskip("nsim.synth.path")
-synth_oracle = pytest.importorskip("nsim.synth.oracle")
+from nsim.sfm.colmap import run_sfm
+from nsim.sfm.options import SfmOptions
+from nsim.synth import oracle as synth_oracle
+from nsim.synth import path as synth_path
+from nsim.synth import room as synth_room
 
 pytestmark = pytest.mark.slow
 

@@ -46,7 +46,8 @@ def _scene(store: Store, root) -> str:
     from nsim.geometry.cameras import Camera
     from nsim.io.images import to_uint8, write_image
     from nsim.io.transforms_json import Frame, TransformsData, write_transforms
-    from nsim.sfm.colmap import SfmOptions, colmap_log_level, run_sfm
+    from nsim.sfm.colmap import colmap_log_level, run_sfm
+    from nsim.sfm.options import SfmOptions
     from nsim.synth.oracle import RoomOracle
     from nsim.synth.path import handheld_path
     from nsim.synth.room import make_room
