@@ -2,7 +2,7 @@
 
 ``simulate(sc, forces, behaviours, dt_s, duration_s, seed)`` turns a resolved
 :class:`~nsim.crowd.scenario.Scenario` into arrays (the humans' ``CrowdState``, the robot's track,
-the walls) and runs ``nsim.crowd.social_force.rollout`` over them when the robot replays its
+the walls) and runs ``nsim.crowd.rollout.rollout`` over them when the robot replays its
 trajectory, or ``closed_loop`` when a controller drives it (``nsim.crowd.controllers``): each tick
 the controller observes, its command is checked and clamped, the robot moves, then the crowd
 steps against the robot where it is and where it will be. ``spawn_extra_humans`` adds random
@@ -20,18 +20,10 @@ from nsim.crowd import controllers as ctl
 from nsim.crowd.behaviours import BEHAVIOUR_NAMES, behaviour_codes
 from nsim.crowd.neighbours import segments_intersect
 from nsim.crowd.paths import clearance_m, enclosed, yaw_of_poses, yaw_poses_se3
+from nsim.crowd.rollout import CrowdTrajectory, RobotTrack, crowd_record, rollout
 from nsim.crowd.scenario import Scenario, parse_scenario, resolve_scenario
 from nsim.crowd.schema import describe
-from nsim.crowd.social_force import (
-    CrowdState,
-    CrowdTrajectory,
-    RobotTrack,
-    crowd_record,
-    keep_out_of_walls,
-    make_walls,
-    rollout,
-    step,
-)
+from nsim.crowd.social_force import CrowdState, keep_out_of_walls, make_walls, step
 from nsim.crowd.state import RobotState
 from nsim.errors import InputError, NsimError
 

@@ -87,7 +87,8 @@ import numpy as np
 
 from nsim.crowd.behaviours import BEHAVIOUR_NAMES
 from nsim.crowd.neighbours import closest_points_on_segments
-from nsim.crowd.social_force import CrowdTrajectory, ForceParams, pair_repulsion
+from nsim.crowd.rollout import CrowdTrajectory
+from nsim.crowd.social_force import ForceParams, pair_repulsion
 
 # Thresholds of hunav_evaluator/hunav_metrics.py (indicator_function, get_group_center, collisions,
 # time_not_moving) and the goal radius its node gives the robot's goal (hunav_evaluator_node.py).

@@ -438,13 +438,13 @@ def test_nsim_state_machine_transitions():
 def test_time_step_warning_counts_only_behaviours_someone_has(caplog):
     # 1.3 x 1.0 m/s x 0.08 s < half a radius; a threatening human (2 m/s) would not be
     calm = CrowdState.create([[0.0, 0.0], [0.0, 2.0]], [[5.0, 0.0], [5.0, 2.0]], desired_speed_mps=1.0)
-    with caplog.at_level("WARNING", logger="nsim.crowd.social_force"):
+    with caplog.at_level("WARNING", logger="nsim.crowd.rollout"):
         rollout(calm, 2, 0.08)
     assert not [r for r in caplog.records if "half their radius" in r.getMessage()]
     threat = CrowdState.create(
         [[0.0, 0.0], [0.0, 2.0]], [[5.0, 0.0], [5.0, 2.0]], desired_speed_mps=1.0, behaviour=[1, 6]
     )
-    with caplog.at_level("WARNING", logger="nsim.crowd.social_force"):
+    with caplog.at_level("WARNING", logger="nsim.crowd.rollout"):
         rollout(threat, 2, 0.08)
     assert [r for r in caplog.records if "half their radius" in r.getMessage()]
 

@@ -13,15 +13,9 @@ from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.geometry.transforms import make_se3, rotation_angle_deg, umeyama
-from nsim.sfm.register import (
-    DriftModel,
-    PosePairs,
-    RegisterOptions,
-    drift_nodes,
-    fit_pose_pairs,
-    pose_residuals,
-    register_trajectory,
-)
+from nsim.sfm.drift_refinement import DriftModel, drift_nodes
+from nsim.sfm.register import PosePairs, fit_pose_pairs, pose_residuals, register_trajectory
+from nsim.sfm.registration_types import RegisterOptions
 
 YAW_DEG = 30.0
 SHIFT_M = np.array([0.96, 0.72, 0.0])  # 1.2 m
