@@ -209,7 +209,7 @@ def rescore_in_process(ws: Path, scene_id: str, image_side: int, tmp: Path, log:
 
 def quick_capture(ws: Path, log: Path) -> tuple[list[str], Path | None]:
     """A small test-room capture; returns the reconstruct arguments and the reference (its GT poses)."""
-    presets = {p.stem for p in (REPO / "configs" / "capture").glob("*.yaml")}
+    presets = {p.stem for p in (REPO / "nsim" / "configs" / "capture").glob("*.yaml")}
     preset = "phone" if "phone" in presets else "tiny"
     # SIFT needs about 100 frames of the two-loop path at 160x120 to chain them (as the tiny demo does)
     sets = ["--set", "n_frames=100", "--set", "width=160", "--set", "height=120", "--set", "video=false"]

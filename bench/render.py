@@ -788,7 +788,7 @@ def main() -> None:
                                                          "method: baked): speed, images, depth, LiDAR, bake cost")
     ap.add_argument("--capture", default=None, help="the capture the --scene was trained on (default: made here "
                                                     "with the capture preset; a scene of another capture scores wrong)")
-    ap.add_argument("--bake-preset", default=None, help="--baked: the bake preset (configs/bake/NAME.yaml; default: "
+    ap.add_argument("--bake-preset", default=None, help="--baked: the bake preset (nsim/configs/bake/NAME.yaml; default: "
                                                         "default, tiny with --quick)")
     ap.add_argument("--baked-id", default=None, help="--baked: measure this baked-scene (id or ref) of the scene "
                                                      "instead of baking one (bake_s: the time it recorded)")

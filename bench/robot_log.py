@@ -5,7 +5,7 @@ rendered and scored, against the same sensors scored against the test room's ora
                               [--sensors left,lidar] [--render-stride K]
 
 The chain is ``pipelines/paper.py``'s ``--recording`` path (``spot_run`` then ``run_recording``): robot-lab's
-capture and scene and the Spot run (simulate configs/scenarios/spot_run.json), the realistic robot log of that run
+capture and scene and the Spot run (simulate nsim/configs/scenarios/spot_run.json), the realistic robot log of that run
 (``nsim capture robot-log``: Spot's five fisheye cameras at half size with auto-exposure drift, noise and JPEG,
 their depth with holes and a minimum range, the LiDAR with dropout and range noise, drifting odometry, a camera
 clock offset, the odometry frame rotated and shifted from the room's; its ``<bag>.truth.json``), ``import-log``,

@@ -1,7 +1,7 @@
 """Typed, strict configuration.
 
 Each stage defines a frozen dataclass next to the code that uses it; presets are YAML files
-in ``configs/<stage>/<name>.yaml``. Loading is strict: unknown keys, wrong types and
+in ``nsim/configs/<stage>/<name>.yaml``. Loading is strict: unknown keys, wrong types and
 out-of-range values raise :class:`~nsim.errors.ConfigError` naming the dotted key, e.g.
 ``train.lr: expected float > 0, got -1``.
 
@@ -21,7 +21,7 @@ constraints and help from that one definition with :func:`param_from`; a datacla
 from Python checks its own fields with :func:`check_params`.
 
 A preset file may name another preset of the same stage with ``inherit: NAME``: its keys then
-override that preset's (``configs/train_scene/default.yaml`` is ``inherit: cpu``).
+override that preset's (``nsim/configs/train_scene/default.yaml`` is ``inherit: cpu``).
 
 Supported field types: ``bool``, ``int``, ``float``, ``str``, ``tuple[T, ...]``,
 ``tuple[T1, T2]``, ``X | None`` and nested config dataclasses (two levels at most, by
@@ -292,24 +292,16 @@ def config_digest(cfg: Any) -> str:
 # --------------------------------------------------------------------------------------
 
 
-#: Where a wheel carries its copy of the repository's ``configs/`` (setup.py's build step puts it there).
-PACKAGED_CONFIGS = Path(__file__).resolve().parent / "_configs"
-#: The repository's ``configs/``, the one source of the presets (a checkout or an editable install).
-REPO_CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+#: The presets, rigs, scenarios, motions and schemas: package data (``nsim/configs/``), so a checkout, an editable
+#: install and a wheel read the same files from the same place (pyproject.toml's ``package-data``).
+PACKAGED_CONFIGS = Path(__file__).resolve().parent / "configs"
 
 
 def configs_dir() -> Path:
-    """Directory holding the preset YAML files (and the rigs, scenarios, motions and schemas beside them).
-
-    ``$NSIM_CONFIGS`` if set; else the copy an installed wheel carries (``nsim/_configs/``); else the
-    repository's ``configs/`` next to the package (a checkout, an editable install).
-    """
+    """Directory holding the preset YAML files (and the rigs, scenarios, motions and schemas beside them):
+    ``$NSIM_CONFIGS`` if set, else the package's own ``nsim/configs/``."""
     env = os.environ.get("NSIM_CONFIGS")
-    if env:
-        return Path(env)
-    if PACKAGED_CONFIGS.is_dir():
-        return PACKAGED_CONFIGS
-    return REPO_CONFIGS
+    return Path(env) if env else PACKAGED_CONFIGS
 
 
 def read_yaml(path: Path, what: str = "config") -> Any:

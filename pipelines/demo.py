@@ -91,7 +91,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
 
     repo = Path(__file__).resolve().parents[1]
     sim_cfg = load_config(simulate.Config, stage="simulate", preset=preset)
-    scenario = simulate.load_scenario(repo / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
+    scenario = simulate.load_scenario(repo / "nsim" / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
     out = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx))
     ctx.store.set_ref("trajectory/demo-spot-run", out.trajectory)
 
@@ -104,7 +104,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     if not bag.exists():
         bag.parent.mkdir(exist_ok=True)
         rl_cfg = load_config(capture.RobotLogConfig, stage="robot_log", preset="tiny")
-        step("capture robot-log", lambda: capture.robot_log(traj_id, repo / "configs" / "robots" / "spot.yaml",
+        step("capture robot-log", lambda: capture.robot_log(traj_id, repo / "nsim" / "configs" / "robots" / "spot.yaml",
                                                               bag, rl_cfg, ctx))
     il_cfg = load_config(import_log.Config, stage="import_log", preset="default")
     rec = step("import-log (ROS 2 bag)", lambda: import_log.run(import_log.Inputs(log=(bag,)), il_cfg, ctx))
@@ -126,7 +126,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     # with the scenario's people drawn by the human NeRF.
     ren_preset = "tiny" if tiny else "cpu"
     ren_cfg = load_config(render.Config, stage="render", preset=ren_preset)
-    ren_inputs = render.Inputs(trajectory=traj_id, scene=scene_id, rig=repo / "configs" / "robots" / "spot.yaml",
+    ren_inputs = render.Inputs(trajectory=traj_id, scene=scene_id, rig=repo / "nsim" / "configs" / "robots" / "spot.yaml",
                                humans=(human,))
     spot = step("render (spot rig, people)", lambda: render.run(ren_inputs, ren_cfg, ctx)).render
     ctx.store.set_ref("render/demo-spot-run", spot)
@@ -138,7 +138,7 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
     ctx.store.set_ref("render/demo-heldout", held.render)
 
     # The scene baked (nsim bake): its density on a 10 cm lattice meshed, the mesh fitted to the NeRF's median
-    # depths and textured from the training images (configs/bake/tiny.yaml: the default preset's surface, small),
+    # depths and textured from the training images (nsim/configs/bake/tiny.yaml: the default preset's surface, small),
     # and the same held-out frames rendered from it (--set method=baked).
     bake_cfg = load_config(bake.Config, stage="bake", preset="tiny")
     baked = step("bake (a surface fitted to the NeRF, 10 cm lattice)",

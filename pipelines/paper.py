@@ -6,10 +6,10 @@
 For each of the five room presets (robot-lab, common-room, kitchen, living-room, seminar-room):
 capture synth -> poses (reconstruct, or the capture's ground-truth poses at ``tiny``) ->
 train-scene -> render of the scene's held-out frames at their own cameras (poses mode). Then a
-Spot run in robot-lab (simulate configs/scenarios/spot_run.json: five people walk around the
+Spot run in robot-lab (simulate nsim/configs/scenarios/spot_run.json: five people walk around the
 robot), a human checkpoint (capture synth --actor in robot-lab -> train-human over the capture's
 background images) that draws every person of the run, and the run rendered along the robot's
-path by configs/robots/spot.yaml in robot-lab's scene with its people (trajectory mode,
+path by nsim/configs/robots/spot.yaml in robot-lab's scene with its people (trajectory mode,
 ``--humans``; the pipeline prints in how many camera frames people are in view), and
 ``evaluate`` for each table:
 
@@ -107,7 +107,7 @@ REPO = Path(__file__).resolve().parents[1]
 ROOMS = tuple(ROOM_PRESETS)
 EXPECTED_MIN = {"tiny": 6, "small": 10, "default": 150}
 EXPECTED_RECORDING_MIN = {"tiny": 10, "small": 15, "default": 120}
-CAMERAS = "frontleft,frontright,left,right,back"  # Spot's five body cameras (configs/robots/spot.yaml)
+CAMERAS = "frontleft,frontright,left,right,back"  # Spot's five body cameras (nsim/configs/robots/spot.yaml)
 
 # Per size: preset and overrides of each stage. "reconstruct": None trains on ground-truth poses;
 # "slam" / "detection": None scores the Spot render itself; "evaluate_detection": the detection table's.
@@ -280,9 +280,9 @@ def run_paper(workspace: Path, size: str, seed: int, device: str, out_dir: Path 
 
 
 def simulate_spot_run(ctx: RunContext, size: str) -> str:
-    """The Spot run (configs/scenarios/spot_run.json in robot-lab); its trajectory id."""
+    """The Spot run (nsim/configs/scenarios/spot_run.json in robot-lab); its trajectory id."""
     sim_cfg = cfg_of(simulate.Config, "simulate", size, "simulate")
-    scenario = simulate.load_scenario(REPO / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
+    scenario = simulate.load_scenario(REPO / "nsim" / "configs" / "scenarios" / "spot_run.json", store=ctx.store)
     traj = step("simulate (spot_run)", lambda: simulate.run(simulate.Inputs(scenario), sim_cfg, ctx)).trajectory
     ctx.store.set_ref("trajectory/paper-spot-run", traj)
     return traj
@@ -311,7 +311,7 @@ def paper_tables(ctx: RunContext, size: str) -> tuple[dict, SpotRun]:
     traj = simulate_spot_run(ctx, size)
     human = human_of_room(ctx, "robot-lab", size)
     spot_cfg = cfg_of(render.Config, "render", size, "spot")
-    spot_inputs = render.Inputs(trajectory=traj, scene=scenes["robot-lab"], rig=REPO / "configs" / "robots" / "spot.yaml",
+    spot_inputs = render.Inputs(trajectory=traj, scene=scenes["robot-lab"], rig=REPO / "nsim" / "configs" / "robots" / "spot.yaml",
                                 humans=(human,))
     spot = step("render (spot rig, robot-lab, people)", lambda: render.run(spot_inputs, spot_cfg, ctx)).render
     ctx.store.set_ref("render/paper-spot-run", spot)
@@ -401,7 +401,7 @@ def robot_log_of_run(ctx: RunContext, size: str, trajectory: str) -> Path:
     from nsim.synth.robot_log import TRUTH_VERSION, truth_path
 
     cfg = rec_cfg(capture.RobotLogConfig, "robot_log", size, "robot_log")
-    rig = REPO / "configs" / "robots" / "spot.yaml"
+    rig = REPO / "nsim" / "configs" / "robots" / "spot.yaml"
     digest = hashlib.sha256(json.dumps({"trajectory": trajectory, "config": to_dict(cfg), "seed": ctx.seed,
                                         "rig": hashlib.sha256(rig.read_bytes()).hexdigest(),
                                         "truth_version": TRUTH_VERSION}, sort_keys=True).encode()).hexdigest()
@@ -442,7 +442,7 @@ def registration_error(doc: dict[str, Any], truth: dict[str, Any]) -> dict[str, 
             "clock_s": abs(float(doc["clock_offset_s"]) - float(truth["clock_offset_s"]))}
 
 
-#: Spot's LiDAR (configs/robots/spot.yaml): the twin renders it as the log recorded it (its azimuth scale)
+#: Spot's LiDAR (nsim/configs/robots/spot.yaml): the twin renders it as the log recorded it (its azimuth scale)
 TWIN_LIDAR = "lidar"
 
 
@@ -497,7 +497,7 @@ def run_recording(ctx: RunContext, size: str, request: RecordingRequest, spot: S
     twin = None
     if request.log is None:  # the log is the Spot run's: the same sensors at the same ticks against the oracle
         tw_cfg = rec_cfg(render.Config, "render", size, "render", twin_overrides(size, truth))
-        tw_inputs = render.Inputs(trajectory=spot.trajectory, scene=scene, rig=REPO / "configs" / "robots" / "spot.yaml")
+        tw_inputs = render.Inputs(trajectory=spot.trajectory, scene=scene, rig=REPO / "nsim" / "configs" / "robots" / "spot.yaml")
         twin = step("render (twin of the log, oracle)", lambda: render.run(tw_inputs, tw_cfg, ctx)).render
         store.set_ref("render/paper-recording-twin", twin)
 

@@ -91,7 +91,7 @@ def test_inherit_is_for_presets_only(tmp_path):
 
 
 def _stage_configs():
-    """(stage folder, its Config class) for every stage whose presets live in configs/<stage>/."""
+    """(stage folder, its Config class) for every stage whose presets live in nsim/configs/<stage>/."""
     out = []
     for folder in sorted(p.name for p in configs_dir().iterdir() if p.is_dir()):
         if folder == "robot_log":
@@ -185,7 +185,7 @@ SFM_MIRRORS = {
 
 
 def _mirror_classes():
-    from nsim.evaluation.config import SlamConfig
+    from nsim.evaluation.evaluate_config import SlamConfig
     from nsim.stages.reconstruct import Config
 
     return {"reconstruct": Config, "slam": SlamConfig}
@@ -256,7 +256,7 @@ def test_bounds_that_once_disagreed():
 
 def test_stage_defaults_are_unchanged():
     """Single-sourcing moved no default: the configs (and so the artifact ids) are what they were."""
-    from nsim.evaluation.config import SlamConfig
+    from nsim.evaluation.evaluate_config import SlamConfig
     from nsim.stages.reconstruct import Config
 
     assert dataclasses.asdict(Config()) == {

@@ -18,7 +18,7 @@ import nsim.config as config
 from nsim.config import ConfigError, configs_dir, load_config, to_dict
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIGS = REPO / "configs"
+CONFIGS = REPO / "nsim" / "configs"
 
 
 # ------------------------------------------------------------------------------- preset lookup
@@ -26,26 +26,22 @@ CONFIGS = REPO / "configs"
 
 @pytest.fixture
 def lookup(tmp_path, monkeypatch):
-    """nsim.config looking at a packaged copy and a repository folder under tmp_path (neither made yet)."""
+    """nsim.config looking at a package's configs folder under tmp_path (not made yet)."""
     monkeypatch.delenv("NSIM_CONFIGS", raising=False)
-    packaged, repo = tmp_path / "site" / "nsim" / "_configs", tmp_path / "repo" / "configs"
+    packaged = tmp_path / "site" / "nsim" / "configs"
     monkeypatch.setattr(config, "PACKAGED_CONFIGS", packaged)
-    monkeypatch.setattr(config, "REPO_CONFIGS", repo)
-    return packaged, repo
+    return packaged
 
 
-def test_lookup_order_env_then_wheel_then_repository(lookup, tmp_path, monkeypatch):
-    packaged, repo = lookup
-    repo.mkdir(parents=True)
-    assert configs_dir() == repo  # a checkout or an editable install: no packaged copy
-    packaged.mkdir(parents=True)
-    assert configs_dir() == packaged  # an installed wheel
+def test_lookup_order_env_then_package(lookup, tmp_path, monkeypatch):
+    packaged = lookup
+    assert configs_dir() == packaged
     monkeypatch.setenv("NSIM_CONFIGS", str(tmp_path / "mine"))
     assert configs_dir() == tmp_path / "mine"
 
 
 def test_presets_read_from_a_packaged_copy(lookup):
-    packaged, _ = lookup
+    packaged = lookup
     (packaged / "capture").mkdir(parents=True)
     (packaged / "capture" / "tiny.yaml").write_text("n_frames: 3\n")
     from nsim.stages.capture import Config
@@ -57,12 +53,11 @@ def test_this_checkout_reads_its_configs(monkeypatch):
     if Path(nsim.__file__).resolve().parents[1] != REPO:
         pytest.skip("nsim is not imported from this checkout")
     monkeypatch.delenv("NSIM_CONFIGS", raising=False)
-    assert not config.PACKAGED_CONFIGS.exists()  # only a built wheel has nsim/_configs/
     assert configs_dir() == CONFIGS
 
 
 def test_missing_presets_folder_is_one_line(lookup, run_cli, tmp_path, monkeypatch):
-    _, repo = lookup
+    repo = lookup
     with pytest.raises(ConfigError, match=r"the presets folder .* is missing \(reinstall nsim, or set \$NSIM_CONFIGS\)"):
         config.preset_path("capture", "tiny")
     code, out, err = run_cli("capture", "synth", "--preset", "tiny")
@@ -143,7 +138,7 @@ def _run(cmd, **kwargs) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
-    """sdist first (MANIFEST.in must carry configs/), then the wheel from the sdist, as ``python -m build`` does."""
+    """sdist first (it must carry nsim/configs/: package data), then the wheel from the sdist, as ``python -m build`` does."""
     dist = tmp_path_factory.mktemp("dist")
     egg_info = REPO / "nsim.egg-info"  # what setuptools' sdist leaves in the source tree
     had_egg_info = egg_info.exists()
@@ -161,7 +156,7 @@ def wheel(tmp_path_factory) -> Path:
 
 def test_wheel_carries_the_repository_configs(wheel):
     with zipfile.ZipFile(wheel) as zf:
-        packaged = {n.removeprefix("nsim/_configs/"): zf.read(n) for n in zf.namelist() if n.startswith("nsim/_configs/")}
+        packaged = {n.removeprefix("nsim/configs/"): zf.read(n) for n in zf.namelist() if n.startswith("nsim/configs/")}
         assert "nsim/cli.py" in zf.namelist() and "nsim/config.py" in zf.namelist()
     repo = {p.relative_to(CONFIGS).as_posix(): p.read_bytes() for p in CONFIGS.rglob("*") if p.is_file()}
     assert "capture/tiny.yaml" in repo and "schemas/scenario.schema.json" in repo
@@ -189,7 +184,7 @@ def test_installed_wheel_runs_outside_the_repository(wheel, tmp_path, run_cli):
     where = _run([py, "-c", "import nsim, nsim.config as c; print(nsim.__file__); print(c.configs_dir())"],
                  cwd=elsewhere, env=env).stdout.splitlines()
     assert Path(where[0]).is_relative_to(site / "nsim"), where
-    assert Path(where[1]) == site / "nsim" / "_configs", where
+    assert Path(where[1]) == site / "nsim" / "configs", where
 
     ws = tmp_path / "ws"
     proc = _run([venv / "bin" / "nsim", "--workspace", ws, "capture", "synth", "--preset", "tiny"], cwd=elsewhere, env=env)
@@ -199,7 +194,7 @@ def test_installed_wheel_runs_outside_the_repository(wheel, tmp_path, run_cli):
     from nsim.stages.capture import Config
     from nsim.workspace.store import Store
 
-    tiny = load_config(Config, stage="capture", preset="tiny")  # this checkout's configs/capture/tiny.yaml
+    tiny = load_config(Config, stage="capture", preset="tiny")  # this checkout's nsim/configs/capture/tiny.yaml
     manifest = Store(ws).get(art_id).manifest
     assert manifest["kind"] == "capture"
     expected = to_dict(tiny)  # the manifest leaves out the phone model while it is all defaults

@@ -33,7 +33,7 @@ def synth(click_ctx, preset, config_file, overrides, force, tag, room, camera, a
 
 
 @command.command("robot-log")
-@click.option("--preset", default="default", show_default=True, help="Preset from configs/robot_log/NAME.yaml.")
+@click.option("--preset", default="default", show_default=True, help="Preset from nsim/configs/robot_log/NAME.yaml.")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None, help="YAML file over the preset.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override one config value (repeatable).")
 @click.argument("trajectory")

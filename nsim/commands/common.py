@@ -38,7 +38,7 @@ def stage_options(stage: str):
             "--config", "config_file", type=click.Path(dir_okay=False), default=None, help="YAML file over the preset."
         )(f)
         f = click.option(
-            "--preset", default="default", show_default=True, help=f"Preset from configs/{stage}/NAME.yaml."
+            "--preset", default="default", show_default=True, help=f"Preset from nsim/configs/{stage}/NAME.yaml."
         )(f)
         return f
 

@@ -21,7 +21,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--baked", default=None, help="A baked-scene artifact of the scene (nsim bake), with --set method=baked "
                                             "(without it, method=baked bakes the scene here).")
 @click.option("--rig", type=click.Path(dir_okay=False), default=None,
-              help="Robot rig file (trajectory mode), e.g. configs/robots/spot.yaml.")
+              help="Robot rig file (trajectory mode), e.g. nsim/configs/robots/spot.yaml.")
 @click.option("--humans", multiple=True, help="Human checkpoint(s) that draw the trajectory's people (repeatable; with "
                                                "--recording, their clock: people_time_offset_s).")
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,

@@ -14,7 +14,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
     "--trajectory",
     "scenario_file",
     default=None,
-    help="Scenario file (JSON or YAML), e.g. configs/scenarios/spot_run.json.",
+    help="Scenario file (JSON or YAML), e.g. nsim/configs/scenarios/spot_run.json.",
 )
 @click.option(
     "--sweep",

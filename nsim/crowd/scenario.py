@@ -2,7 +2,7 @@
 
 A scenario file is an *input* (not an artifact). Reading it takes two steps:
 
-1. ``parse_scenario`` / ``read_scenario`` validate it against ``configs/schemas/scenario.schema.json``
+1. ``parse_scenario`` / ``read_scenario`` validate it against ``nsim/configs/schemas/scenario.schema.json``
    (JSON Schema draft 2020-12, the single source of its structure, ranges and defaults; checked by
    ``jsonschema`` through ``nsim.crowd.schema``), inline a TUM trajectory and check what a schema
    cannot express: unique ids, increasing pose times, unit quaternions. The result is a
@@ -102,7 +102,7 @@ def scenario_schema_path() -> Path:
 
 
 def scenario_validator() -> SchemaValidator:
-    """The validator of ``configs/schemas/scenario.schema.json`` (read once)."""
+    """The validator of ``nsim/configs/schemas/scenario.schema.json`` (read once)."""
     global _VALIDATOR
     if _VALIDATOR is None:
         path = scenario_schema_path()

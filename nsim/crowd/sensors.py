@@ -6,7 +6,7 @@ frames::
     robot:
       sensors: {rate_hz: 2, rig: spot, names: [frontleft, lidar], image_scale: 0.25}
 
-``rig`` is a rig preset (``configs/robots/<name>.yaml``; default ``spot``), a rig file relative to the
+``rig`` is a rig preset (``nsim/configs/robots/<name>.yaml``; default ``spot``), a rig file relative to the
 scenario file, or (in the canonical scenario, where ``resolve_rig`` puts it) the resolved rig
 itself (``nsim.sensors.rig.Rig.to_dict``), so the stored scenario needs no file and its digest (the
 simulate stage's action key) changes with any mount, intrinsics or LiDAR pattern. ``names``: the

@@ -7,8 +7,8 @@
 * ``motion_io`` — ``load_motion``: a BVH or DeepMimic file retargeted onto the nsim body.
 * ``bvh``       — BVH reader/writer (per-joint Euler orders, unit detection, file:line errors).
 * ``deepmimic`` — DeepMimic clips as shipped by the optional pybullet wheel.
-* ``retarget``  — any skeleton onto the nsim body by a joint-name map (``configs/motions/joint_map.yaml``).
-* ``gait``      — procedural walk / idle / turn clips; the shipped ``configs/motions/*.bvh``.
+* ``retarget``  — any skeleton onto the nsim body by a joint-name map (``nsim/configs/motions/joint_map.yaml``).
+* ``gait``      — procedural walk / idle / turn clips; the shipped ``nsim/configs/motions/*.bvh``.
 
 The articulated, textured actor that renders these bodies in the test room is ``nsim.synth.actor``.
 Import ``load_motion`` from ``nsim.human.motion_io``: this package imports only the data types,

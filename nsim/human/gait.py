@@ -25,7 +25,7 @@ The walk is built from its feet, so planted feet never slide:
 
 Clips are cycles with the closing frame included (``MotionClip.loop``): ``N + 1`` frames
 spanning exactly one period, at about ``fps``. ``write_default_clips`` writes the shipped
-``configs/motions/*.bvh`` (regenerate with ``python -m nsim.human.gait configs/motions``).
+``nsim/configs/motions/*.bvh`` (regenerate with ``python -m nsim.human.gait nsim/configs/motions``).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ MAX_LEG_EXTENSION = 0.985
 """Largest hip-to-ankle distance as a fraction of thigh + shin: legs never lock straight."""
 
 DEFAULT_CLIPS: dict[str, float | None] = {"walk_slow": 0.8, "walk": 1.3, "walk_fast": 1.8, "idle": None}
-"""Shipped clips (``configs/motions/NAME.bvh``): walking speed in m/s, None for standing idle."""
+"""Shipped clips (``nsim/configs/motions/NAME.bvh``): walking speed in m/s, None for standing idle."""
 
 DEFAULT_FPS = 30.0
 
@@ -373,5 +373,5 @@ def write_default_clips(out_dir: str | Path) -> list[Path]:
 
 
 if __name__ == "__main__":
-    for p in write_default_clips(sys.argv[1] if len(sys.argv) > 1 else "configs/motions"):
+    for p in write_default_clips(sys.argv[1] if len(sys.argv) > 1 else "nsim/configs/motions"):
         print(p)

@@ -21,7 +21,7 @@ default it is then shifted vertically so that the feet touch the floor (``ground
 A ``JointMap`` maps each nsim joint to one or more candidate source names (the first present
 in the source is used; names match case-insensitively, ignoring a ``prefix:`` such as
 Mixamo's ``mixamorig:``), in one or more naming profiles (the best-matching one is used).
-``default_joint_map()`` reads ``configs/motions/joint_map.yaml``: profiles for nsim's own
+``default_joint_map()`` reads ``nsim/configs/motions/joint_map.yaml``: profiles for nsim's own
 names, CMU (cgspeed BVH conversion) and Mixamo.
 
 A skeleton that mostly does not map would come out as a body with straight legs and a stiff
@@ -162,7 +162,7 @@ def load_joint_map(path: str | os.PathLike[str]) -> JointMap:
 
 
 def default_joint_map() -> JointMap:
-    """The shipped map (``configs/motions/joint_map.yaml``): nsim names, CMU and Mixamo names."""
+    """The shipped map (``nsim/configs/motions/joint_map.yaml``): nsim names, CMU and Mixamo names."""
     return load_joint_map(configs_dir() / DEFAULT_JOINT_MAP_FILE)
 
 
@@ -230,7 +230,7 @@ def check_coverage(mapping: Mapping[int, int], source: Skeleton, target: Skeleto
         shown = ", ".join(source.joint_names[:12]) + (", ..." if source.num_joints > 12 else "")
         raise InputError(f"{name}: only {len(mapping)} of {J} body joints map to the source skeleton{names}; "
                          f"missing: {', '.join(missing)} ({why}); source joints: {shown}; "
-                         f"give a joint map for this skeleton (see configs/{DEFAULT_JOINT_MAP_FILE})")
+                         f"give a joint map for this skeleton (see nsim/configs/{DEFAULT_JOINT_MAP_FILE})")
     absent = [n for n in missing if expected and expected.get(n)]
     if absent:
         log.warning("%s: %d of %d body joints map to the source skeleton%s; no source joint for %s, which "

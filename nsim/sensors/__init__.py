@@ -1,7 +1,7 @@
 """The robot's sensors: rigs (YAML, URDF links), cameras, depth cameras and spinning LiDARs.
 
     from nsim.sensors import Rig
-    rig = Rig.load("configs/robots/spot.yaml")
+    rig = Rig.load("nsim/configs/robots/spot.yaml")
     for sensor in rig:
         origins, dirs = sensor.rays(body_to_world)   # (N, 3) each, row-major over sensor.ray_shape
 """

@@ -6,7 +6,7 @@ Frames
     down, +z forward); LiDARs are x forward, y left, z up (``nsim.sensors.lidar``). A sensor's
     mount is ``sensor_to_body (4, 4)``, so ``sensor_to_world = body_to_world @ sensor_to_body``.
 
-Rig file (``configs/robots/*.yaml``)::
+Rig file (``nsim/configs/robots/*.yaml``)::
 
     name: spot                  # optional, default: the file name
     urdf: spot_like.urdf        # optional: mounts may name links of this URDF (relative to the file)

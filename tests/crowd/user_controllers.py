@@ -1,4 +1,4 @@
-"""User controller classes for the tests and for ``configs/scenarios/sweeps/spot_run_controllers.yaml``.
+"""User controller classes for the tests and for ``nsim/configs/scenarios/sweeps/spot_run_controllers.yaml``.
 
 ``nsim.crowd.controllers`` documents the protocol: ``Class(**params)``, then
 ``command(observation) -> (vx_mps, vy_mps, yaw_rate_radps)`` in the body frame each tick.

@@ -80,7 +80,7 @@ def world(tmp_path_factory) -> World:
     root = tmp_path_factory.mktemp("recording_truth")
     ws = root / "ws"
     w = ["--workspace", str(ws)]
-    assert main([*w, "simulate", "--scenario", "configs/scenarios/spot_run.json", "--preset", "tiny",
+    assert main([*w, "simulate", "--scenario", "nsim/configs/scenarios/spot_run.json", "--preset", "tiny",
                  "--set", "max_duration_s=2.0", "--tag", "trajectory/run"]) == 0
     assert main([*w, "capture", "robot-log", "trajectory/run", *ROBOT_LOG, "--out", str(root / "run")]) == 0
     assert main([*w, "import-log", str(root / "run"), "--tag", "recording/run"]) == 0
@@ -349,7 +349,7 @@ def slam_world(tmp_path_factory) -> World:
     root = tmp_path_factory.mktemp("recording_slam")
     ws = root / "ws"
     w = ["--workspace", str(ws)]
-    assert main([*w, "simulate", "--scenario", "configs/scenarios/spot_run.json", "--preset", "tiny",
+    assert main([*w, "simulate", "--scenario", "nsim/configs/scenarios/spot_run.json", "--preset", "tiny",
                  "--tag", "trajectory/run"]) == 0
     assert main([*w, "capture", "robot-log", "trajectory/run", "--preset", "tiny", "--set", "sensors=[left]",
                  "--set", "image_scale=0.4", "--set", "tick_stride=2", "--set", "max_ticks=8",

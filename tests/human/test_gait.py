@@ -14,7 +14,7 @@ from nsim.human.gait_phase import stride_length_m
 from nsim.human.motion import LocomotionLoop
 from nsim.human.skeleton import heading_yaw
 
-MOTIONS = Path(__file__).resolve().parents[2] / "configs" / "motions"
+MOTIONS = Path(__file__).resolve().parents[2] / "nsim" / "configs" / "motions"
 
 
 @pytest.mark.parametrize("speed", [0.8, 1.3, 1.8])

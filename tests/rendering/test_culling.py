@@ -21,7 +21,7 @@ from nsim.rendering.culling import (
 )
 from nsim.sensors import Rig
 
-ROBOTS = Path(__file__).resolve().parents[2] / "configs" / "robots"
+ROBOTS = Path(__file__).resolve().parents[2] / "nsim" / "configs" / "robots"
 PINHOLE = Camera.pinhole_from_fov(160, 120, 60.0)
 CAMERAS = {
     "pinhole": PINHOLE,

@@ -11,7 +11,7 @@ from nsim.geometry.transforms import make_se3
 from nsim.sensors.lidar import BeamPattern, LidarConfig, beam_directions, beams_and_config
 from nsim.sensors.rig import LidarSensor, LidarSpec, Rig
 
-ROBOTS = Path(__file__).resolve().parents[2] / "configs" / "robots"
+ROBOTS = Path(__file__).resolve().parents[2] / "nsim" / "configs" / "robots"
 UNEVEN_DEG = (-25.0, -10.0, -3.0, 0.0, 2.0, 15.0)
 AZIMUTHS = 36
 

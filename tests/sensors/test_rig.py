@@ -15,8 +15,8 @@ from nsim.sensors import CameraSensor, DepthConfig, LidarConfig, LidarSensor, Ri
 from nsim.sensors.depth import apply_depth_model, range_to_z_depth, z_depth_to_range
 from nsim.sensors.rig import LINK_TO_OPTICAL
 
-ROBOTS = Path(__file__).resolve().parents[2] / "configs" / "robots"
-BODY_HEIGHT_M = 0.5  # configs/robots/spot.yaml: the body frame origin above the ground when standing
+ROBOTS = Path(__file__).resolve().parents[2] / "nsim" / "configs" / "robots"
+BODY_HEIGHT_M = 0.5  # nsim/configs/robots/spot.yaml: the body frame origin above the ground when standing
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from nsim.errors import InputError
 from nsim.geometry import invert_se3, is_rotation
 from nsim.sensors.urdf import load_urdf, rpy_to_matrix
 
-SPOT_URDF = Path(__file__).resolve().parents[2] / "configs" / "robots" / "spot_like.urdf"
+SPOT_URDF = Path(__file__).resolve().parents[2] / "nsim" / "configs" / "robots" / "spot_like.urdf"
 
 
 def test_rpy_matches_fixed_axis_xyz_euler():

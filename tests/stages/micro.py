@@ -6,7 +6,7 @@ from nsim.config import read_preset
 
 CAPTURE = ["width=64", "height=48", "n_frames=24", "supersample=1", "video=false"]
 
-#: The micro scene NeRF: ``configs/train_scene/micro.yaml``, put over the tiny preset.
+#: The micro scene NeRF: ``nsim/configs/train_scene/micro.yaml``, put over the tiny preset.
 MICRO_SCENE = read_preset("train_scene", "micro")
 
 

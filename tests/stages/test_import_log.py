@@ -30,7 +30,7 @@ from nsim.workspace.store import Store
 def bag(tmp_path_factory):
     """A 6-tick clean log of Spot (32 x 24 cameras, a 16 x 90 LiDAR) in the robot lab; the odometry
     frame offset from the room's, and drift-free."""
-    rig = adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
+    rig = adapt_rig(load_rig("nsim/configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
     spec = make_room("robot-lab", seed=0)
     n = 6
     cx, cy, rx, ry = spec.walk_loop_xy_m
@@ -147,7 +147,7 @@ def test_capture_robot_log_then_import(tmp_path, capsys):
     """``nsim capture robot-log`` of a simulated run (tiny preset) writes a bag and its truth; import-log reads it;
     bad destinations exit 2 before any rendering."""
     ws = str(tmp_path / "ws")
-    assert main(["--workspace", ws, "simulate", "--scenario", "configs/scenarios/spot_run.json",
+    assert main(["--workspace", ws, "simulate", "--scenario", "nsim/configs/scenarios/spot_run.json",
                  "--tag", "trajectory/run"]) == 0
     out = tmp_path / "run"
     assert main(["--workspace", ws, "capture", "robot-log", "trajectory/run", "--preset", "tiny", "--out", str(out)]) == 0

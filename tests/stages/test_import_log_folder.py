@@ -29,7 +29,7 @@ from tests.io.test_robot_folder import export_folder
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     """A 4-tick clean log of Spot (32 x 24 cameras with depth, a 16 x 90 LiDAR), as a bag and as a folder."""
-    rig = adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
+    rig = adapt_rig(load_rig("nsim/configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
     spec = make_room("robot-lab", seed=0)
     n = 4
     cx, cy, rx, ry = spec.walk_loop_xy_m

@@ -88,7 +88,7 @@ def world(tmp_path_factory):
     store = Store(ws)
     store.set_ref("poses/scene", _scene(store, root))
     w = ["--workspace", str(ws)]
-    assert main([*w, "simulate", "--scenario", "configs/scenarios/spot_run.json", "--preset", "tiny",
+    assert main([*w, "simulate", "--scenario", "nsim/configs/scenarios/spot_run.json", "--preset", "tiny",
                  "--tag", "trajectory/run"]) == 0
     bag = root / "run"
     assert main([*w, "capture", "robot-log", "trajectory/run", *ROBOT_LOG, "--out", str(bag)]) == 0

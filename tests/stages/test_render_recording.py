@@ -50,7 +50,7 @@ SCENE = {"optim": {"steps": 250}, "loss": {"image_depth_weight": 1.0}}
 
 def _rig():
     """Spot's front-left (RGB) and left (grey) fisheyes at 32 x 24 with z-depth, its LiDAR at 16 x 90."""
-    rig = adapt_rig(load_rig("configs/robots/spot.yaml"),
+    rig = adapt_rig(load_rig("nsim/configs/robots/spot.yaml"),
                     RobotLogConfig(sensors=SENSORS, image_scale=0.05, lidar_azimuth_scale=0.05))
     grey = tuple(dataclasses.replace(s, color="gray") if s.name == "left" else s for s in rig.sensors)
     return dataclasses.replace(rig, sensors=grey)
@@ -372,7 +372,7 @@ def people(world, tmp_path_factory):
     store, _, _ = world
     root = tmp_path_factory.mktemp("render_recording_people")
     w = ["--workspace", str(store.root)]
-    assert main([*w, "simulate", "--scenario", "configs/scenarios/spot_run.json", "--preset", "tiny", "--set",
+    assert main([*w, "simulate", "--scenario", "nsim/configs/scenarios/spot_run.json", "--preset", "tiny", "--set",
                  "max_duration_s=1.0", "--set", "video=false", "--tag", "trajectory/run"]) == 0
     bag = root / "run"
     assert main([*w, "capture", "robot-log", "trajectory/run", "--preset", "tiny", "--set", "sensors=[frontleft]",
@@ -403,7 +403,7 @@ def _truth_masks(store: Store, truth: dict) -> list[np.ndarray]:
 
     arrays = dict(np.load(store.get(store.resolve("trajectory/crossing")).file("trajectory.npz"), allow_pickle=False))
     people = HumanSet([], arrays, "cpu")
-    cam = adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(sensors=("frontleft",), image_scale=0.1)).sensors[0]
+    cam = adapt_rig(load_rig("nsim/configs/robots/spot.yaml"), RobotLogConfig(sensors=("frontleft",), image_scale=0.1)).sensors[0]
     oracle = RoomOracle(make_room("robot-lab", seed=0))
     masks = []
     for i in range(PEOPLE_TICKS):
@@ -473,7 +473,7 @@ def test_people_render_where_the_oracle_sees_them(people):
     ("run without people", ["--trajectory", "trajectory/crossing"], ["only supplies the people", "pass --humans"]),
     ("no overlap", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--set", "people_time_offset_s=-5"],
      ["spans simulation time [0, 1] s", "no frame overlaps the run"]),
-    ("a rig", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--rig", "configs/robots/spot.yaml"],
+    ("a rig", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--rig", "nsim/configs/robots/spot.yaml"],
      ["a recording renders its own recorded sensors"]),
 ])
 def test_bad_people_input_is_one_line_and_publishes_nothing(people, capsys, case, args, fragments):

@@ -50,7 +50,7 @@ def world(tmp_path_factory):
     root = tmp_path_factory.mktemp("train_rec")
     ws = root / "ws"
     w = ["--workspace", str(ws)]
-    assert main([*w, "simulate", "--scenario", "configs/scenarios/spot_run.json", "--preset", "tiny", "--set",
+    assert main([*w, "simulate", "--scenario", "nsim/configs/scenarios/spot_run.json", "--preset", "tiny", "--set",
                  "video=false", "--tag", "trajectory/run"]) == 0
     bag = root / "run"
     assert main([*w, "capture", "robot-log", "trajectory/run", *ROBOT_LOG, "--out", str(bag)]) == 0

@@ -54,7 +54,7 @@ def room():
 @pytest.fixture(scope="module")
 def rig() -> Rig:
     """Spot's rig with 32x24 cameras and a 16 x 90 LiDAR."""
-    return adapt_rig(load_rig("configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
+    return adapt_rig(load_rig("nsim/configs/robots/spot.yaml"), RobotLogConfig(image_scale=0.05, lidar_azimuth_scale=0.05))
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The micro train-scene preset (``configs/train_scene/micro.yaml``) builds what the tests built by hand.
+"""The micro train-scene preset (``nsim/configs/train_scene/micro.yaml``) builds what the tests built by hand.
 
 Before the preset, ``tests/stages/micro.py`` and ``tests/train/test_scene.py`` each spelled out a
 micro scene NeRF as a dict; both now start from the preset. These are those two dicts as they were,
@@ -8,7 +8,7 @@ so that the switch changed no test's config (nor any test artifact's id).
 from __future__ import annotations
 
 from nsim.config import from_dict, load_config, preset_path
-from nsim.train.scene import TrainSceneConfig
+from nsim.train.scene_config import TrainSceneConfig
 from tests.stages.micro import MICRO_SCENE, micro_scene
 from tests.train.test_scene import MICRO, micro_cfg
 

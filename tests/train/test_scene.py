@@ -12,17 +12,12 @@ import torch
 
 from nsim.config import from_dict, load_config, read_preset
 from nsim.errors import InputError
-from nsim.train.scene import (
-    SceneData,
-    SceneTrainer,
-    TrainSceneConfig,
-    constant_color_psnr,
-    export_scene,
-    scene_bounds,
-    train_scene,
-)
+from nsim.train.scene import SceneData, SceneTrainer, scene_bounds, train_scene
+from nsim.train.scene_config import TrainSceneConfig
+from nsim.train.scene_eval import constant_color_psnr
+from nsim.train.scene_export import export_scene
 
-#: The micro preset (``configs/train_scene/micro.yaml``, as the stage tests use it) over the dataclass
+#: The micro preset (``nsim/configs/train_scene/micro.yaml``, as the stage tests use it) over the dataclass
 #: defaults, with 8 steps, a checkpoint every 3 (the resume tests) and its own batch and grid sizes.
 MICRO = {k: dict(v) for k, v in read_preset("train_scene", "micro").items()}
 MICRO["optim"].update(steps=8, rays_per_batch=256, proposal_warmup_steps=4, proposal_update_every=2)
@@ -264,7 +259,8 @@ def test_kill_9_then_resume_is_bit_identical(tiny_capture_dir, tiny_data, tmp_pa
     script = (
         "import json, sys\n"
         "from nsim.config import from_dict\n"
-        "from nsim.train.scene import SceneData, TrainSceneConfig, train_scene\n"
+        "from nsim.train.scene import SceneData, train_scene\n"
+        "from nsim.train.scene_config import TrainSceneConfig\n"
         f"cfg = from_dict(TrainSceneConfig, json.loads({cfg_json!r}))\n"
         f"train_scene(SceneData.load({str(tiny_capture_dir)!r}), cfg, {str(tmp_path / 'work')!r}, seed=9)\n"
     )
@@ -304,7 +300,8 @@ def test_export_repeats_byte_for_byte(tiny_data, tmp_path):
 
 def test_grid_model_trains_resumes_and_reloads(tiny_data, tmp_path):
     from nsim.rendering.model import load_model
-    from nsim.train.scene import export_scene, train_scene
+    from nsim.train.scene import train_scene
+    from nsim.train.scene_export import export_scene
 
     cfg = micro_cfg(sampler={"kind": "grid", "grid_cell_m": 0.25, "grid_update_every": 2, "grid_warmup_steps": 4},
                     loss={"distortion_weight": 0.01})
@@ -354,7 +351,8 @@ def test_checkpoint_keeps_the_training_images_mean_colour(tiny_data, tmp_path):
     """``image_mean_rgb`` in scene.json (``nsim render``'s fill): the mean colour of the training
     images only (held-out frames excluded); checkpoints without it load with None."""
     from nsim.rendering.model import load_model
-    from nsim.train.scene import export_scene, train_scene
+    from nsim.train.scene import train_scene
+    from nsim.train.scene_export import export_scene
 
     cfg = micro_cfg(optim={"steps": 2})
     result = train_scene(tiny_data, cfg, tmp_path / "run", seed=0)
