@@ -1,11 +1,15 @@
-"""``nsim evaluate``'s settings (``configs/evaluate/*.yaml``): which table, and how each is computed."""
+"""``nsim evaluate``'s settings (``nsim/configs/evaluate/*.yaml``): which table, and how each is computed."""
 
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 from nsim.config import param, param_from
 from nsim.sfm.options import SfmOptions
+
+if TYPE_CHECKING:
+    from nsim.metrics.depth import DepthConfig
 
 TABLES = ("scenes", "spot-rgb", "spot-depth", "lidar", "slam", "detection")
 
@@ -51,3 +55,9 @@ class Config:
     error_maps: int = param(2, ge=0, help="depth error map PNGs per group (first frames)")
     slam: SlamConfig = SlamConfig()
     detection: DetectionConfig = DetectionConfig()
+
+    def depth_config(self) -> DepthConfig:
+        """The depth metrics' settings (``nsim.metrics.depth``): valid range and median scaling."""
+        from nsim.metrics.depth import DepthConfig
+
+        return DepthConfig(self.depth_min_m, self.depth_max_m, self.median_scaling)

@@ -1,6 +1,7 @@
 """The evaluation's tables: metrics over the pairs a ground truth gives (``nsim.evaluation.truth``).
 
-``compute(ev)`` runs ``TABLE_FUNCTIONS[ev.cfg.table]`` and returns a ``Result`` (the table, its
+``Evaluation(inputs, cfg)`` holds what the stage resolved (``nsim.evaluation.inputs.EvaluationInputs``),
+the settings, and the renders' ground truth, chosen by their mode (``truth_for``). ``compute(ev)`` runs ``TABLE_FUNCTIONS[ev.cfg.table]`` and returns a ``Result`` (the table, its
 per-frame records and extras, and what to plot); ``nsim.evaluation.write.write_result`` writes it.
 Every table function asks the evaluation's ground truth (``ev.truth``: the test room's oracle or a
 robot's recording) for its pairs, and computes only metrics (``nsim.metrics``) and tables
@@ -36,13 +37,45 @@ import dataclasses
 import math
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.evaluation.renders import as_captured, load_render, read_depth, read_rgb
+from nsim.evaluation.evaluate_config import Config
+from nsim.evaluation.inputs import EvaluationInputs
+from nsim.evaluation.oracle_truth import OracleTruth
+from nsim.evaluation.recording_truth import RecordingTruth
+from nsim.evaluation.renders import as_captured, read_depth, read_rgb, require_mode
+from nsim.evaluation.truth import GroundTruth
+
+if TYPE_CHECKING:
+    from nsim.io.tum import Trajectory
+    from nsim.metrics.paper_tables import DepthRecord, ImageRecord, SlamRecord
+    from nsim.metrics.tables import Table
+
+
+@dataclasses.dataclass(frozen=True)
+class LidarRecord:
+    """One LiDAR sweep against the real one (``nsim.metrics.lidar``; None: no point returned on both sides)."""
+
+    group: str
+    frame: int
+    range_error_median_m: float | None
+    range_error_mean_m: float | None
+    range_bias_m: float | None
+    chamfer_m: float | None
+    hit_agreement: float
+    n_points: int
+    n_both_hit: int
+    n_sim_only: int
+    n_real_only: int
+
+
+if TYPE_CHECKING:
+    #: One per-frame record of a table: image and depth metrics, a LiDAR sweep, a SLAM sequence, or (detection)
+    #: ``nsim.metrics.paper_tables.detection_table``'s input mapping.
+    TableRecord = ImageRecord | DepthRecord | LidarRecord | SlamRecord | dict[str, Any]
 
 
 @dataclasses.dataclass
@@ -50,39 +83,41 @@ class Result:
     """What a table function computed: the table, its per-frame records, extras and plots to draw.
     details: more for ``evaluation.json`` (e.g. the colour-correction maps; empty: none)."""
 
-    table: Any
-    records: list[Any]
+    table: Table
+    records: list[TableRecord]
     extras: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     ground_truth: dict[str, str] = dataclasses.field(default_factory=dict)
-    image_records: list[Any] = dataclasses.field(default_factory=list)
-    depth_records: list[Any] = dataclasses.field(default_factory=list)
-    error_maps: list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None]] = dataclasses.field(default_factory=list)
-    slam_files: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    image_records: list[ImageRecord] = dataclasses.field(default_factory=list)
+    depth_records: list[DepthRecord] = dataclasses.field(default_factory=list)
+    error_maps: list[tuple[str, int, np.ndarray, np.ndarray, np.ndarray | None]] = dataclasses.field(
+        default_factory=list)
+    slam_files: dict[str, dict[str, Trajectory]] = dataclasses.field(default_factory=dict)
     details: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
+def truth_for(inputs: EvaluationInputs, cfg: Config) -> GroundTruth:
+    """The ground truth of the renders: ``RecordingTruth`` for recording-mode renders, else ``OracleTruth``."""
+    modes = {r.mode for r in inputs.renders}
+    if "recording" in modes:
+        if len(modes) > 1:
+            others = sorted(modes - {"recording"})
+            raise InputError(f"evaluate: recording-mode renders are scored against their recording, {others[0]}-mode "
+                             "renders against the test room: evaluate them separately")
+        return RecordingTruth(inputs, cfg)
+    return OracleTruth(inputs, cfg)
+
+
 class Evaluation:
-    """One evaluation: its inputs (``nsim.stages.evaluate.Inputs``), config, context, the loaded renders
-    and their ground truth (``truth``)."""
+    """One evaluation: what the stage resolved (``inputs``: the loaded renders, the artifacts they name, device,
+    seed, detector files), its settings (``cfg``) and the renders' ground truth (``truth``)."""
 
-    def __init__(self, inputs, cfg, ctx: RunContext) -> None:
-        from nsim.evaluation.truth import truth_for
-
-        self.inputs, self.cfg, self.ctx = inputs, cfg, ctx
-        self.store = ctx.store
-        self.renders = [load_render(self.store, r) for r in inputs.renders]
-        self.truth = truth_for(self)
+    def __init__(self, inputs: EvaluationInputs, cfg: Config) -> None:
+        self.inputs, self.cfg = inputs, cfg
+        self.renders = inputs.renders
+        self.truth = truth_for(inputs, cfg)
 
     def require_mode(self, mode: str, how: str) -> None:
-        for r in self.renders:
-            if r.mode != mode:
-                raise InputError(f"render {r.short}: a {r.mode}-mode render; --table {self.cfg.table} needs "
-                                 f"{mode}-mode renders ({how})")
-
-    def depth_cfg(self):
-        from nsim.metrics.depth import DepthConfig
-
-        return DepthConfig(self.cfg.depth_min_m, self.cfg.depth_max_m, self.cfg.median_scaling)
+        require_mode(self.renders, mode, self.cfg.table, how)
 
     def lpips_net(self) -> str | None:
         return None if self.cfg.lpips_net == "none" else self.cfg.lpips_net
@@ -130,7 +165,7 @@ def table_scenes(ev: Evaluation) -> Result:
     ev.require_mode("poses", "nsim render --poses CAPTURE_OR_POSES --scene SCENE --set frames=heldout")
     if cfg.region != "all":
         raise InputError("region=people: the scenes table scores captured frames, which show no people")
-    oracle = ev.truth  # poses-mode renders: the test room's (nsim.evaluation.oracle.OracleTruth)
+    oracle = ev.truth  # poses-mode renders: the test room's (nsim.evaluation.oracle_truth.OracleTruth)
     images, depths, extras, maps, gt_notes = [], [], [], [], {}
     groups: list[str] = []
     for r in ev.renders:
@@ -138,12 +173,12 @@ def table_scenes(ev: Evaluation) -> Result:
         if group in groups:
             group = f"{group} ({r.id[:8]})"
         groups.append(group)
-        src = ev.store.get(r.manifest["inputs"]["poses"])
+        src = ev.inputs.artifacts.get(r.manifest["inputs"]["poses"])
         frames_tf = read_transforms(src.file("transforms.json")).frames
         scale = float(r.manifest.get("config", {}).get("image_scale", 1.0))
         cap_depth: dict[str, Path] = {}
         if src.kind == "poses" and r.lineage.capture is not None:
-            cap = ev.store.get(r.lineage.capture)
+            cap = ev.inputs.artifacts.get(r.lineage.capture)
             for f in read_transforms(cap.file("transforms.json")).frames:
                 if f.depth_file_path:
                     cap_depth[Path(f.file_path).name] = cap.path / f.depth_file_path
@@ -187,11 +222,11 @@ def table_scenes(ev: Evaluation) -> Result:
                 dnumbers.append(i)
             extras.append({"group": group, "frame": i, "render": r.id, "name": f.get("name"),
                            "gt_image": frame.file_path})
-        images += image_records(group, preds, gts, ev.lpips_net(), frames=numbers, device=ev.ctx.device)
+        images += image_records(group, preds, gts, ev.lpips_net(), frames=numbers, device=ev.inputs.device)
         if gdepths:
-            depths += depth_records(group, pdepths, gdepths, ev.depth_cfg(), frames=dnumbers)
+            depths += depth_records(group, pdepths, gdepths, ev.cfg.depth_config(), frames=dnumbers)
             maps += [(group, dnumbers[k], pdepths[k], gdepths[k], None) for k in range(min(cfg.error_maps, len(gdepths)))]
-    table = scenes_table(images, depths, ev.depth_cfg())
+    table = scenes_table(images, depths, ev.cfg.depth_config())
     notes = [f"ground truth, {g}: {n}" for g, n in gt_notes.items()]
     notes += [f"{oracle.environment(r)}: {r.lineage.note}" for r in ev.renders]
     table = _with_notes(table, [*notes, *_image_notes(ev)])
@@ -214,14 +249,14 @@ def table_spot_rgb(ev: Evaluation) -> Result:
                                                           [p.real for p in g.frames], [p.extra for p in g.frames])
         masks = masks if people else None
         records += image_records(g.sensor, preds, gts, ev.lpips_net(), masks=masks, frames=numbers,
-                                 device=ev.ctx.device)
+                                 device=ev.inputs.device)
         extras += [{"group": g.sensor, "frame": i, "render": g.render.id, **x} for i, x in zip(numbers, more,
                                                                                                  strict=True)]
         if truth.colour_correction:
             m = fit_colour_affine(preds, gts, masks)
             maps[f"{g.sensor} ({g.render.short})" if len(ev.renders) > 1 else g.sensor] = m.tolist()
             corrected += image_records(g.sensor + CC, [apply_colour_affine(p, m) for p in preds], gts, ev.lpips_net(),
-                                       masks=masks, frames=numbers, device=ev.ctx.device)
+                                       masks=masks, frames=numbers, device=ev.inputs.device)
     table = spot_rgb_table(records)
     notes = truth.notes("spot-rgb", extras)
     details: dict[str, Any] = {}
@@ -261,32 +296,15 @@ def table_spot_depth(ev: Evaluation) -> Result:
         masks, numbers, preds, gts = _masked_frames(g.sensor, [p.mask for p in g.frames], [p.index for p in g.frames],
                                                     [p.sim for p in g.frames], [p.real for p in g.frames], why=why)
         scored = masks if any(m is not None for m in masks) else None
-        records += depth_records(g.sensor, preds, gts, ev.depth_cfg(), masks=scored, frames=numbers)
+        records += depth_records(g.sensor, preds, gts, ev.cfg.depth_config(), masks=scored, frames=numbers)
         maps += [(g.sensor, numbers[k], preds[k], gts[k], masks[k]) for k in range(min(ev.cfg.error_maps, len(numbers)))]
-    table = spot_depth_table(records, ev.depth_cfg())
+    table = spot_depth_table(records, ev.cfg.depth_config())
     notes = [*truth.notes("spot-depth", extras), *_region_notes(ev), *_lineage_notes(ev)]
     return Result(_with_notes(table, notes), records, extras, truth.described("spot-depth"), depth_records=records,
                   error_maps=maps)
 
 
 # ---------------------------------------------------------------------------------- lidar
-@dataclasses.dataclass(frozen=True)
-class LidarRecord:
-    """One LiDAR sweep against the real one (``nsim.metrics.lidar``; None: no point returned on both sides)."""
-
-    group: str
-    frame: int
-    range_error_median_m: float | None
-    range_error_mean_m: float | None
-    range_bias_m: float | None
-    chamfer_m: float | None
-    hit_agreement: float
-    n_points: int
-    n_both_hit: int
-    n_sim_only: int
-    n_real_only: int
-
-
 LIDAR_COLUMNS = ("range err median [m]", "range err mean [m]", "range err p95 [m]", "range bias [m]", "Chamfer [m]",
                  "hit agreement", "sim only", "real only")
 
@@ -356,7 +374,7 @@ def table_slam(ev: Evaluation) -> Result:
     cfg = ev.cfg.slam
     records, extras, files = [], [], {}
     for seq in ev.truth.slam_sequences():
-        runs = {side: _slam_side(frames, seq.times_s, cfg, ev.ctx.seed) for side, frames in (("real", seq.real),
+        runs = {side: _slam_side(frames, seq.times_s, cfg, ev.inputs.seed) for side, frames in (("real", seq.real),
                                                                                              ("sim", seq.sim))}
         ates: dict[str, Any] = {}
         for side, (traj, _fraction, reason) in runs.items():
@@ -377,7 +395,7 @@ def table_slam(ev: Evaluation) -> Result:
 def _slam_side(frames: list[np.ndarray], times: np.ndarray, cfg, seed: int):
     """``(trajectory | None, registered fraction | None, failure reason | None)`` of SfM on one side."""
     from nsim.metrics.slam import run_colmap_slam
-    from nsim.sfm.colmap import SfmOptions
+    from nsim.sfm.options import SfmOptions
 
     if len(frames) < 3:
         return None, None, f"SfM needs at least 3 frames, the sequence has {len(frames)}"
@@ -478,7 +496,7 @@ def table_detection(ev: Evaluation) -> Result:
 
     cfg, truth = ev.cfg.detection, ev.truth
     if truth.source == "oracle":
-        ev.require_mode("trajectory", "nsim render --trajectory RUN --rig configs/robots/spot.yaml --humans ...")
+        ev.require_mode("trajectory", "nsim render --trajectory RUN --rig nsim/configs/robots/spot.yaml --humans ...")
     name, detect = _detector(ev)
     coco = None
     if detect is None:

@@ -28,12 +28,14 @@ from typing import Any
 import numpy as np
 
 from nsim.errors import InputError
-from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, uint8_rgb
+from nsim.evaluation.evaluate_config import Config
+from nsim.evaluation.inputs import EvaluationInputs
+from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, require_mode, uint8_rgb
 from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence, lidar_rows
 
 log = logging.getLogger(__name__)
 
-TRAJECTORY_HOW = "nsim render --trajectory RUN --rig configs/robots/spot.yaml"
+TRAJECTORY_HOW = "nsim render --trajectory RUN --rig nsim/configs/robots/spot.yaml"
 
 
 def sensor_depth_gt(sensor, depth_range_m: np.ndarray) -> np.ndarray:
@@ -51,8 +53,8 @@ class OracleTruth(GroundTruth):
 
     source = "oracle"
 
-    def __init__(self, ev) -> None:
-        super().__init__(ev)
+    def __init__(self, inputs: EvaluationInputs, cfg: Config) -> None:
+        super().__init__(inputs, cfg)
         self._oracles: dict[str, Any] = {}
         self._too_near_total = 0  # depth_frames: simulated px counted as the minimum range (for the notes)
         self._no_return: dict[str, tuple[int, int, list[float]]] = {}  # depth_frames: camera -> no-return px, px, depths
@@ -67,11 +69,11 @@ class OracleTruth(GroundTruth):
 
     # -- the room
     def room_json(self, capture_id: str) -> dict[str, Any]:
-        return json.loads(self.store.get(capture_id).file("room.json").read_text())
+        return json.loads(self.artifacts.get(capture_id).file("room.json").read_text())
 
     def environment(self, r: RenderData) -> str:
         if r.lineage.capture is not None:
-            cap = self.store.get(r.lineage.capture)
+            cap = self.artifacts.get(r.lineage.capture)
             room = self.room_json(cap.id)
             return str(room.get("preset") or cap.manifest.get("config", {}).get("room") or f"room {cap.id[:8]}")
         return f"render {r.id[:8]}"
@@ -120,10 +122,10 @@ class OracleTruth(GroundTruth):
         from (its actor capture's ``poses.json`` meta ``actor_seed``), or None (trained from a data folder)."""
         seeds: list[int | None] = []
         for h in r.humans:
-            cap = self.store.get(h).manifest.get("inputs", {}).get("capture")
+            cap = self.artifacts.get(h).manifest.get("inputs", {}).get("capture")
             seed = None
             if cap is not None:
-                poses = self.store.get(cap).path / "poses.json"
+                poses = self.artifacts.get(cap).path / "poses.json"
                 if poses.is_file():
                     seed = json.loads(poses.read_text()).get("meta", {}).get("actor_seed")
             seeds.append(int(seed) if isinstance(seed, (int, float)) else None)
@@ -147,7 +149,7 @@ class OracleTruth(GroundTruth):
         traj = r.manifest["inputs"].get("trajectory")
         if traj is None:
             raise InputError(f"render {r.short}: has human checkpoints but no trajectory")
-        arrays = read_npz(self.store.get(traj).file("trajectory.npz"))
+        arrays = read_npz(self.artifacts.get(traj).file("trajectory.npz"))
         people = HumanSet([], arrays, "cpu")
         seeds = self.actor_seeds(r)
         humans = list(r.humans)
@@ -188,7 +190,7 @@ class OracleTruth(GroundTruth):
 
     # -- the interface
     def _require_trajectory(self) -> None:
-        self.ev.require_mode("trajectory", TRAJECTORY_HOW)
+        require_mode(self.renders, "trajectory", self.cfg.table, TRAJECTORY_HOW)
 
     def _spot_frames(self, want: str) -> Iterator[SensorFrames]:
         """Per render and camera, ``FramePair(index, pred, gt, mask)`` of every frame."""

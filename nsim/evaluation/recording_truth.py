@@ -35,7 +35,9 @@ from typing import Any
 import numpy as np
 
 from nsim.errors import InputError, NsimError
-from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, uint8_rgb
+from nsim.evaluation.evaluate_config import Config
+from nsim.evaluation.inputs import EvaluationInputs
+from nsim.evaluation.renders import ArtifactReader, RenderData, as_captured, read_depth, read_rgb, uint8_rgb
 from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence, lidar_rows
 from nsim.rendering.recording import RegisteredTrajectory, read_registration
 
@@ -67,12 +69,12 @@ class Recording:
         return p
 
 
-def _artifact(store, art_id: Any, kind: str, what: str):
+def _artifact(artifacts: ArtifactReader, art_id: Any, kind: str, what: str):
     """The artifact ``art_id`` of ``kind`` that ``what`` names, or one line saying why not."""
     if not isinstance(art_id, str) or not art_id:
         raise InputError(f"{what} names no {kind}")
     try:
-        art = store.get(art_id)
+        art = artifacts.get(art_id)
     except (NsimError, ValueError):
         raise InputError(f"{what} names {kind} {art_id[:12]}, which is not in the workspace") from None
     if art.kind != kind:
@@ -90,13 +92,13 @@ def _json(path: Path, what: str) -> dict[str, Any]:
     return doc
 
 
-def load_recording(store, r: RenderData) -> Recording:
-    art = _artifact(store, r.meta.get("recording"), "recording", f"render {r.short}: render.json")
+def load_recording(artifacts: ArtifactReader, r: RenderData) -> Recording:
+    art = _artifact(artifacts, r.meta.get("recording"), "recording", f"render {r.short}: render.json")
     return Recording(art.id, art.path, _json(art.file("recording.json"), f"recording {art.id[:12]}: recording.json"))
 
 
-def load_registration(store, r: RenderData, recording: Recording) -> RegisteredTrajectory:
-    art = _artifact(store, r.meta.get("registration"), "registration", f"render {r.short}: render.json")
+def load_registration(artifacts: ArtifactReader, r: RenderData, recording: Recording) -> RegisteredTrajectory:
+    art = _artifact(artifacts, r.meta.get("registration"), "registration", f"render {r.short}: render.json")
     reg = read_registration(art.path, art.id[:12])
     registered = reg.doc.get("inputs", {}).get("recording")
     if registered != recording.id:
@@ -144,14 +146,14 @@ class RecordingTruth(GroundTruth):
     source = "recording"
     colour_correction = True
 
-    def __init__(self, ev) -> None:
-        super().__init__(ev)
+    def __init__(self, inputs: EvaluationInputs, cfg: Config) -> None:
+        super().__init__(inputs, cfg)
         self.recordings: dict[str, Recording] = {}
         self.registrations: dict[str, RegisteredTrajectory] = {}
         for r in self.renders:
-            rec = load_recording(self.store, r)
+            rec = load_recording(self.artifacts, r)
             self.recordings[r.id] = rec
-            self.registrations[r.id] = load_registration(self.store, r, rec)
+            self.registrations[r.id] = load_registration(self.artifacts, r, rec)
         self._skipped: dict[str, int] = {}
 
     # -- streams and frames
@@ -216,7 +218,7 @@ class RecordingTruth(GroundTruth):
         from nsim.metrics.depth import valid_depth_mask
 
         self._no_people()
-        depth_cfg = self.ev.depth_cfg()
+        depth_cfg = self.cfg.depth_config()
         self._sim_invalid_px = 0
         for st in self.streams("depth"):
             rows = []

@@ -1,8 +1,9 @@
 """The renders an evaluation scores, where their world comes from, and reading their frames.
 
 ``load_render`` reads a render artifact's ``render.json`` (any mode: ``poses``, ``trajectory``,
-``recording``) into a ``RenderData``; ``lineage`` walks scene-checkpoint -> poses -> capture to find
-the test room behind a render (the oracle's ground truth). A recording-mode render's world is its
+``recording``) into a ``RenderData`` through an ``ArtifactReader`` (the workspace, read only); ``lineage``
+walks scene-checkpoint -> poses -> capture to find the test room behind a render (the oracle's ground
+truth). A recording-mode render's world is its
 registration's: its lineage names the recording, the registration and the scene, nothing more.
 
 Frames as the tables compare them: ``read_rgb`` (float (H, W, 3) in [0, 1]), ``read_depth`` (metres),
@@ -15,11 +16,22 @@ import dataclasses
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from nsim.errors import InputError
+
+if TYPE_CHECKING:
+    from nsim.workspace.store import Artifact
+
+
+class ArtifactReader(Protocol):
+    """Reads published artifacts by id: all the evaluation asks of the workspace (``nsim.workspace.store.Store``
+    is one). The stage hands it over; the evaluation reads the artifacts its renders name (lineage, the test
+    room, recordings, registrations) and never publishes."""
+
+    def get(self, art_id: str) -> Artifact: ...
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -74,13 +86,21 @@ class RenderData:
         return Rig.from_resolved(json.loads(self.file("rig.json").read_text()))
 
 
-def lineage(store, scene_id: str) -> Lineage:
+def require_mode(renders: tuple[RenderData, ...], mode: str, table: str, how: str) -> None:
+    """InputError unless every render is a ``mode``-mode render (``how``: the command that makes one)."""
+    for r in renders:
+        if r.mode != mode:
+            raise InputError(f"render {r.short}: a {r.mode}-mode render; --table {table} needs "
+                             f"{mode}-mode renders ({how})")
+
+
+def lineage(artifacts: ArtifactReader, scene_id: str) -> Lineage:
     """Walk scene-checkpoint -> poses -> capture (see ``Lineage``)."""
-    scene = store.get(scene_id)
+    scene = artifacts.get(scene_id)
     poses_id = scene.manifest.get("inputs", {}).get("poses")
     if poses_id is None:
         return Lineage(None, False, f"scene {scene_id[:12]} names no poses")
-    src = store.get(poses_id)
+    src = artifacts.get(poses_id)
     if src.kind == "capture":
         return Lineage(src.id, True, f"scene trained on capture {src.id[:12]} (ground-truth poses)")
     cap = src.manifest.get("inputs", {}).get("capture")
@@ -88,7 +108,7 @@ def lineage(store, scene_id: str) -> Lineage:
         return Lineage(None, False, f"scene trained on poses {src.id[:12]} of real data (no test-room ground truth)")
     summary = src.manifest.get("summary", {})
     ref = summary.get("file_inputs", {}).get("reference")
-    gt_sha = store.get(cap).manifest["files"].get("gt_trajectory.tum", {}).get("sha256")
+    gt_sha = artifacts.get(cap).manifest["files"].get("gt_trajectory.tum", {}).get("sha256")
     # reconstruct records a file input as sha256 of the file's hex digest (nsim.workspace.store.sha256_path)
     gt_digests = {gt_sha, hashlib.sha256(gt_sha.encode()).hexdigest()} if gt_sha else set()
     aligned = summary.get("scale_source") == "reference" and ref in gt_digests
@@ -101,8 +121,8 @@ def _short(value: Any) -> str:
     return str(value)[:12] if value else "?"
 
 
-def load_render(store, render_id: str) -> RenderData:
-    art = store.get(render_id)
+def load_render(artifacts: ArtifactReader, render_id: str) -> RenderData:
+    art = artifacts.get(render_id)
     try:
         meta = json.loads(art.file("render.json").read_text())
     except json.JSONDecodeError as err:
@@ -121,7 +141,7 @@ def load_render(store, render_id: str) -> RenderData:
         raise InputError(f"render {render_id[:12]}: its manifest names no scene checkpoint")
     if not meta.get("frames"):
         raise InputError(f"render {render_id[:12]}: render.json lists no frames")
-    return RenderData(render_id, art.path, manifest, meta, lineage(store, scene))
+    return RenderData(render_id, art.path, manifest, meta, lineage(artifacts, scene))
 
 
 # ---------------------------------------------------------------------------------- reading frames

@@ -1,25 +1,25 @@
 """Ground truth as an interface: what the simulator's readings are scored against.
 
 A ``GroundTruth`` pairs each simulated reading of the renders with the real one; the table
-functions (``nsim.evaluation.tables``) only compute metrics over those pairs and never ask where
+functions (``nsim.evaluation.evaluate_tables``) only compute metrics over those pairs and never ask where
 the real readings came from. Two implementations:
 
-``OracleTruth`` (``nsim.evaluation.oracle``)
+``OracleTruth`` (``nsim.evaluation.oracle_truth``)
     The test room's oracle (``nsim.synth.oracle.RoomOracle``) rendered at exactly the rendered
     cameras' poses, through each sensor's model (exposure, depth kind and range), with the
     render's people as test-room actors; for ``scenes`` also the frames a scene was trained from.
     Scores ``poses``- and ``trajectory``-mode renders.
-``RecordingTruth`` (``nsim.evaluation.recording``)
+``RecordingTruth`` (``nsim.evaluation.recording_truth``)
     A robot's recording (``nsim import-log``) that a recording-mode render (``nsim render
     --recording``) renders sensor for sensor and frame for frame: the recorded camera images,
     depth images and LiDAR sweeps, and the recording's trajectory registered into the scene's
     world (``nsim register-log``). Real exposure differs from the simulator's, so image tables are
     also scored after a per-camera affine colour correction (``colour_correction``).
 
-``truth_for(ev)`` picks the implementation from the renders' mode (all renders of one evaluation
-share one). Each method yields the pairs of one table, reading and checking every file as it goes
-(bad input: ``InputError``, before anything is published); ``notes`` and ``described`` say, in the
-table's notes and in ``evaluation.json``, what the ground truth was.
+``nsim.evaluation.evaluate_tables.truth_for`` picks the implementation from the renders' mode (all
+renders of one evaluation share one). Each method yields the pairs of one table, reading and checking
+every file as it goes (bad input: ``InputError``, before anything is published); ``notes`` and
+``described`` say, in the table's notes and in ``evaluation.json``, what the ground truth was.
 
 Pairs (``FramePair.sim`` / ``.real``) per table:
 
@@ -41,11 +41,10 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from nsim.errors import InputError
-
 if TYPE_CHECKING:
+    from nsim.evaluation.evaluate_config import Config
+    from nsim.evaluation.inputs import EvaluationInputs
     from nsim.evaluation.renders import RenderData
-    from nsim.evaluation.tables import Evaluation
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -86,18 +85,18 @@ class SlamSequence:
 
 
 class GroundTruth(abc.ABC):
-    """The interface (module docstring). ``ev``: the evaluation (inputs, config, context, renders)."""
+    """The interface (module docstring) over what the stage resolved (``inputs``: the loaded renders, the
+    artifacts they name) and the evaluation's settings (``cfg``)."""
 
     #: "oracle" or "recording"
     source: ClassVar[str]
     #: real exposure differs from the simulator's: image tables also report colour-corrected metrics
     colour_correction: ClassVar[bool] = False
 
-    def __init__(self, ev: Evaluation) -> None:
-        self.ev = ev
-        self.cfg = ev.cfg
-        self.store = ev.store
-        self.renders = ev.renders
+    def __init__(self, inputs: EvaluationInputs, cfg: Config) -> None:
+        self.cfg = cfg
+        self.artifacts = inputs.artifacts
+        self.renders = inputs.renders
 
     @abc.abstractmethod
     def image_frames(self) -> Iterator[SensorFrames]: ...
@@ -111,8 +110,8 @@ class GroundTruth(abc.ABC):
     @abc.abstractmethod
     def slam_sequences(self) -> Iterator[SlamSequence]: ...
 
-    def detection_unavailable(self, coco: bool) -> tuple[RenderData, str] | None:
-        """A render the detection experiment cannot score, and why (None: all can)."""
+    def detection_unavailable(self, coco: bool) -> tuple[RenderData, str, list[str]] | None:
+        """A render the detection experiment cannot score, why, and its cameras (None: all can)."""
         return None
 
     @abc.abstractmethod
@@ -139,18 +138,3 @@ def lidar_rows(xyz_m: np.ndarray, range_m: np.ndarray | None = None) -> np.ndarr
     rng = np.where(hit & np.isfinite(rng), rng, np.nan)
     return np.concatenate([xyz, rng[:, None]], axis=-1)
 
-
-def truth_for(ev: Evaluation) -> GroundTruth:
-    """The ground truth of the renders: ``RecordingTruth`` for recording-mode renders, else ``OracleTruth``."""
-    modes = {r.mode for r in ev.renders}
-    if "recording" in modes:
-        if len(modes) > 1:
-            others = sorted(modes - {"recording"})
-            raise InputError(f"evaluate: recording-mode renders are scored against their recording, {others[0]}-mode "
-                             "renders against the test room: evaluate them separately")
-        from nsim.evaluation.recording import RecordingTruth
-
-        return RecordingTruth(ev)
-    from nsim.evaluation.oracle import OracleTruth
-
-    return OracleTruth(ev)

@@ -1,4 +1,4 @@
-"""Writing an evaluation's ``Result`` (``nsim.evaluation.tables``) into its artifact folder.
+"""Writing an evaluation's ``Result`` (``nsim.evaluation.evaluate_tables``) into its artifact folder.
 
 Layout::
 
@@ -19,11 +19,14 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from nsim.errors import InputError
+
+if TYPE_CHECKING:
+    from nsim.evaluation.evaluate_tables import Evaluation, Result
 
 log = logging.getLogger(__name__)
 
@@ -65,9 +68,9 @@ def rounded(value: Any) -> Any:
     return value
 
 
-def write_result(out_dir: Path, table_name: str, renders: tuple[str, ...], ev, result) -> None:
-    """Write ``result`` of the evaluation ``ev`` (``nsim.evaluation.tables.Evaluation``) of ``renders``; every
-    number rounded first (:func:`rounded`)."""
+def write_result(out_dir: Path, table_name: str, renders: tuple[str, ...], ev: Evaluation, result: Result) -> None:
+    """Write ``result`` of the evaluation ``ev`` (``nsim.evaluation.evaluate_tables.Evaluation``) of
+    ``renders``; every number rounded first (:func:`rounded`)."""
     from nsim.io.tum import write_tum
     from nsim.metrics import paper_tables as pt
 
@@ -100,7 +103,7 @@ def write_result(out_dir: Path, table_name: str, renders: tuple[str, ...], ev, r
     for group, frame, pred, gt, mask in result.error_maps:
         safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in group)
         _try_plot(pt.plot_depth_error_map, plots / "depth_error" / f"{safe}_{frame:06d}.png", pred, gt,
-                  ev.depth_cfg(), mask)
+                  ev.cfg.depth_config(), mask)
     for seq, trajs in result.slam_files.items():
         safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in seq)
         (out_dir / "slam" / safe).mkdir(parents=True, exist_ok=True)

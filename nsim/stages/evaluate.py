@@ -1,16 +1,18 @@
 """``nsim evaluate``: how real the simulation is, as one of the paper's tables (an ``evaluation`` artifact).
 
 ``--table`` picks the experiment (``scenes``, ``spot-rgb``, ``spot-depth``, ``lidar``, ``slam``,
-``detection``: ``nsim.evaluation.tables``); ``--render`` (repeatable) the render artifacts it scores.
+``detection``: ``nsim.evaluation.evaluate_tables``); ``--render`` (repeatable) the render artifacts it scores.
 The ground truth follows from the renders' mode (``nsim.evaluation.truth``):
 
 * ``poses`` / ``trajectory`` renders of a scene trained on the test room: the room's oracle at the
-  rendered poses (``nsim.evaluation.oracle``), or for ``scenes`` the captured frames;
+  rendered poses (``nsim.evaluation.oracle_truth``), or for ``scenes`` the captured frames;
 * ``recording`` renders (``nsim render --recording``): the robot's recording they render, frame for
-  frame, and its registration into the scene's world (``nsim.evaluation.recording``).
+  frame, and its registration into the scene's world (``nsim.evaluation.recording_truth``).
 
-This module resolves the inputs, checks the run cache, computes the table (every input is read and
-checked before anything is published) and publishes the artifact (layout: ``nsim.evaluation.write``).
+This module resolves the inputs (``evaluation_inputs``: the loaded renders, the workspace as a read-only
+``ArtifactReader``, device and seed, for ``nsim.evaluation.inputs.EvaluationInputs``), checks the run cache,
+computes the table (every input is read and checked before anything is published) and publishes the artifact
+(layout: ``nsim.evaluation.write``).
 
 Bad input is one line (``InputError``): a render of the wrong mode for the table, frames missing
 or out of range (frame counts that do not match), images or depth maps of different sizes, NaN
@@ -30,13 +32,14 @@ from typing import Any
 from nsim.config import from_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.evaluation.config import TABLES, Config, DetectionConfig, SlamConfig
+from nsim.evaluation.evaluate_config import TABLES, Config, DetectionConfig, SlamConfig
+from nsim.evaluation.inputs import EvaluationInputs
 
 STAGE = "evaluate"
 VERSION = 3  # 2: numbers rounded (nsim.io.canonical); 3: spot-depth notes no-return px per camera
 
 __all__ = ["STAGE", "TABLES", "VERSION", "Config", "DetectionConfig", "Inputs", "Outputs", "SlamConfig",
-           "action_key", "load_table", "rebuild", "resolve_inputs", "run"]
+           "action_key", "evaluation_inputs", "load_table", "rebuild", "resolve_inputs", "run"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,16 +87,33 @@ def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     return dataclasses.replace(inputs, renders=ids)
 
 
+IMAGE_TABLES = ("scenes", "spot-rgb")  # score images: LPIPS, the one computation that runs on a device
+
+
+def _runs_lpips(cfg: Config) -> bool:
+    return cfg.lpips_net != "none" and cfg.table in IMAGE_TABLES
+
+
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     extra: dict[str, Any] = {"files": _file_digests(inputs)}
-    if cfg.lpips_net != "none" and cfg.table in ("scenes", "spot-rgb"):
+    if _runs_lpips(cfg):
         extra["device"] = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
+def evaluation_inputs(inputs: Inputs, cfg: Config, ctx: RunContext) -> EvaluationInputs:
+    """What the evaluation reads (``inputs`` resolved): the renders loaded, the workspace to read the artifacts
+    they name, the device (resolved for the image tables only; else ``cpu``) and the seed."""
+    from nsim.evaluation.renders import load_render
+
+    return EvaluationInputs(renders=tuple(load_render(ctx.store, r) for r in inputs.renders), artifacts=ctx.store,
+                            device=ctx.device if cfg.table in IMAGE_TABLES else "cpu", seed=ctx.seed, onnx=inputs.onnx,
+                            coco_sim=inputs.coco_sim, coco_real=inputs.coco_real)
+
+
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     """Compute ``cfg.table`` over the renders (or find it in the run cache)."""
-    from nsim.evaluation.tables import Evaluation, compute
+    from nsim.evaluation.evaluate_tables import Evaluation, compute
     from nsim.evaluation.write import write_result
 
     inputs = resolve_inputs(inputs, ctx)
@@ -102,7 +122,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     key = action_key(inputs, cfg, ctx)
     if not ctx.force and (hit := ctx.store.lookup(key)) is not None:
         return Outputs(evaluation=hit.id, cache_hit=True)
-    ev = Evaluation(inputs, cfg, ctx)
+    ev = Evaluation(evaluation_inputs(inputs, cfg, ctx), cfg)
     result = compute(ev)  # every input is read and checked before publishing
     with ctx.store.publish(kind="evaluation", stage=STAGE, version=VERSION, key=key, config=cfg,
                            inputs=inputs.ids(), seed=ctx.seed) as out:

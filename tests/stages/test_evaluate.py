@@ -161,7 +161,7 @@ def test_spot_rgb_and_depth_tables(world):
 def test_spot_render_equal_to_the_oracle_is_exact(world):
     """Camera images and depth made by the oracle at the frames' camera poses score exactly: checks
     that evaluation finds the same cameras, poses, exposure and depth kind as the renderer."""
-    from nsim.evaluation.oracle import sensor_depth_gt
+    from nsim.evaluation.oracle_truth import sensor_depth_gt
     from nsim.evaluation.renders import uint8_rgb
     from nsim.io.exr import write_depth_exr
     from nsim.io.images import write_image
@@ -194,7 +194,7 @@ def test_spot_render_equal_to_the_oracle_is_exact(world):
 def test_a_hole_in_the_scene_is_named_per_camera(world):
     """Issue 42's `left` camera: a scene model with a hole (no return, +inf, where the truth has a surface) in one
     camera's view raises that camera's AbsRel alone; the table's notes and records name the camera and the pixels."""
-    from nsim.evaluation.oracle import sensor_depth_gt
+    from nsim.evaluation.oracle_truth import sensor_depth_gt
     from nsim.io.exr import write_depth_exr
     from nsim.io.transforms_json import read_transforms
     from nsim.sensors.rig import Rig
@@ -387,8 +387,8 @@ def test_detection_ground_truth_is_the_oracle_with_the_people(people):
     """A render whose frames are the oracle's with the actors detects exactly what the ground truth does,
     and its person masks are the oracle's: the evaluation poses and dresses the people as the render does."""
     from nsim.config import load_config
+    from nsim.evaluation.evaluate_tables import Evaluation
     from nsim.evaluation.renders import uint8_rgb
-    from nsim.evaluation.tables import Evaluation
     from nsim.io.coco import write_instance_mask
     from nsim.io.images import write_image
     from nsim.io.transforms_json import read_transforms
@@ -398,7 +398,8 @@ def test_detection_ground_truth_is_the_oracle_with_the_people(people):
 
     ctx = RunContext(store=people, device_spec="cpu")
     cfg = load_config(ev_stage.Config, stage="evaluate", preset="tiny", overrides=["table=detection"])
-    evaluation = Evaluation(Inputs(renders=(people.resolve("render/people"),)), cfg, ctx)
+    inputs = ev_stage.evaluation_inputs(Inputs(renders=(people.resolve("render/people"),)), cfg, ctx)
+    evaluation = Evaluation(inputs, cfg)
     actors = evaluation.truth.actors(evaluation.renders[0])
     oracle = evaluation.truth.oracle(evaluation.renders[0].lineage.capture)
 
@@ -427,7 +428,7 @@ def test_detection_ground_truth_is_the_oracle_with_the_people(people):
 
 def test_upright_turns_of_spot_cameras():
     """Spot's front cameras are rolled ~90 deg, its right camera is upside down: turned so up is up."""
-    from nsim.evaluation.tables import upright_turns
+    from nsim.evaluation.evaluate_tables import upright_turns
     from nsim.sensors.rig import Rig
 
     rig = Rig.load(SPOT)
