@@ -150,7 +150,7 @@ def test_a_stage_refuses_a_tampered_input_and_publishes_nothing(store, run_cli):
 
 
 def test_check_on_read_uses_the_marker_and_sees_a_rewrite(store, monkeypatch):
-    import nsim.workspace.store as st
+    import nsim.workspace.verify as st
 
     art, _ = toy_publish(store, ToyConfig(repeat=4))
     hashed = []
