@@ -32,7 +32,8 @@ from train_scene import make_capture, render_speed  # noqa: E402  (bench/train_s
 
 from nsim.config import load_config  # noqa: E402
 from nsim.train.loop import torch_threads  # noqa: E402
-from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
+from nsim.train.scene import SceneData, SceneTrainer  # noqa: E402
+from nsim.train.scene_config import TrainSceneConfig  # noqa: E402
 
 
 def main() -> None:
@@ -82,7 +83,7 @@ def render_check(trainer: SceneTrainer, data: SceneData, views: list[int]) -> di
     import torch
 
     from nsim.rendering.renderer import camera_rays, render_rays
-    from nsim.train.scene import bake_occupancy
+    from nsim.train.scene_export import bake_occupancy
 
     model = trainer.model.eval()
     rays = [camera_rays(model, data.cameras[0], data.cam_to_world[v])[0] for v in views]

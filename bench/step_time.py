@@ -30,7 +30,8 @@ from nsim.config import load_config  # noqa: E402
 from nsim.train import heap  # noqa: E402
 from nsim.train import scene as scene_mod  # noqa: E402
 from nsim.train.loop import torch_threads  # noqa: E402
-from nsim.train.scene import SceneData, SceneTrainer, TrainSceneConfig  # noqa: E402
+from nsim.train.scene import SceneData, SceneTrainer  # noqa: E402
+from nsim.train.scene_config import TrainSceneConfig  # noqa: E402
 
 
 def main() -> None:

@@ -44,14 +44,10 @@ from nsim.metrics.depth import abs_rel  # noqa: E402
 from nsim.metrics.image import psnr  # noqa: E402
 from nsim.stages import capture  # noqa: E402
 from nsim.train.loop import spread  # noqa: E402
-from nsim.train.scene import (  # noqa: E402
-    SceneData,
-    TrainSceneConfig,
-    bake_occupancy,
-    constant_color_psnr,
-    image_metrics,
-    train_scene,
-)
+from nsim.train.scene import SceneData, train_scene  # noqa: E402
+from nsim.train.scene_config import TrainSceneConfig  # noqa: E402
+from nsim.train.scene_eval import constant_color_psnr, image_scores  # noqa: E402
+from nsim.train.scene_export import bake_occupancy  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
 
@@ -92,7 +88,7 @@ def score_off_path(model, oracle, data: SceneData, poses, method="proposal", gri
     for pose in poses:
         gt = oracle.render_gt(cam, pose, supersample=2)
         view = render_camera(model, cam, pose, method=method, grid=grid)
-        rows.append({**image_metrics(view.rgb, gt.rgb), "abs_rel_median": abs_rel(view.depth_median_z, gt.depth_z),
+        rows.append({**image_scores(view.rgb, gt.rgb, "none"), "abs_rel_median": abs_rel(view.depth_median_z, gt.depth_z),
                      "abs_rel_expected": abs_rel(view.depth_z, gt.depth_z)})
     return {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
 

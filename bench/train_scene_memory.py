@@ -133,6 +133,11 @@ def main(argv: list[str] | None = None) -> dict:
     import nsim.train.scene as scene
     from nsim.config import load_config
 
+    try:  # export_scene and the grids it bakes: in nsim.train.scene before the trainer's module was split
+        import nsim.train.scene_export as scene_export
+    except ImportError:
+        scene_export = scene
+
     root = quick_capture(args.workspace) if args.quick else Path(args.path)
     if root.is_file():
         root = root.parent
@@ -147,8 +152,8 @@ def main(argv: list[str] | None = None) -> dict:
 
     seconds: dict[str, float] = {}
     with RssSampler() as sampler, tempfile.TemporaryDirectory(prefix="nsim-bench-mem-") as tmp:
-        wrap(scene, "bake_occupancy", sampler, "post:occupancy", seconds)
-        wrap(scene, "bake_obstacles", sampler, "post:obstacles", seconds)
+        wrap(scene_export, "bake_occupancy", sampler, "post:occupancy", seconds)
+        wrap(scene_export, "bake_obstacles", sampler, "post:obstacles", seconds)
         wrap(scene, "evaluate", sampler, "post:heldout", seconds, owner=scene.SceneTrainer)
         with sampler.during("load", seconds):
             data = scene.SceneData.load(root, **load_kwargs)
@@ -158,7 +163,7 @@ def main(argv: list[str] | None = None) -> dict:
                                        on_log=lambda tr, _: logs.append((tr.step, tr.train_seconds)))
         out = Path(tmp) / "out"
         with sampler.during("post", seconds):
-            scene.export_scene(out, result)
+            scene_export.export_scene(out, result)
         ev = json.loads((out / "eval.json").read_text()) if (out / "eval.json").is_file() else {}
         train_seconds = result.trainer.train_seconds
     peak_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB

@@ -266,15 +266,11 @@ class SceneModel(nn.Module):
                         geo_pass1 = torch.zeros(ray.shape[0], geo.shape[-1], device=device, dtype=geo.dtype)
                     geo_pass1[idx] = geo
                 # transmittance before each sample of the block, per ray (samples are ray-major)
-                tau = sig * (t1[idx] - t0[idx])
-                csum = torch.cumsum(tau.double(), 0)
                 r = ray[idx]
-                cnt = torch.bincount(r, minlength=n)
-                first = torch.cumsum(cnt, 0) - cnt
-                before_block = (csum - tau.double()) - (csum - tau.double())[first[r]]  # exclusive, within ray
+                tau, before_block = quadrature.packed_optical_depth(sig, t1[idx] - t0[idx], r)
                 t_before = log_trans[r].double() - before_block
                 keep[idx] = t_before > stop
-                log_trans = log_trans - torch.zeros(n, device=device, dtype=torch.float64).index_add_(0, r, tau.double()).float()
+                log_trans = log_trans - torch.zeros(n, device=device, dtype=torch.float64).index_add_(0, r, tau).float()
             ray, t0, t1 = ray[keep], t0[keep], t1[keep]
             counts = torch.bincount(ray, minlength=n)
             slot = self._slots(counts, ray)

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -301,6 +300,9 @@ def fit_texture(texture: SurfaceTexture, points: Tensor, colours: Tensor, steps:
                 generator: torch.Generator, on_step=None) -> float:
     """Fit ``texture`` to ``colours (N, 3)`` at world ``points (N, 3)`` by Adam (learning rate decaying tenfold over
     the ``steps``), batches of ``batch`` drawn with ``generator``. Returns the last batch's PSNR (dB)."""
+    # imported here: the nsim.metrics package costs a renderer (which never fits) a second to import
+    from nsim.metrics.image import psnr_from_mse
+
     if len(points) == 0:
         raise ValueError("fit_texture: no points to fit the texture to")
     opt = torch.optim.Adam([{"params": texture.encoding.parameters(), "eps": 1e-15},
@@ -319,7 +321,7 @@ def fit_texture(texture: SurfaceTexture, points: Tensor, colours: Tensor, steps:
             if on_step is not None:
                 on_step(s)
     texture.eval().requires_grad_(False)
-    return float(-10.0 * math.log10(max(float(loss.detach()), 1e-12)))
+    return psnr_from_mse(max(float(loss.detach()), 1e-12))
 
 
 # -- rendering ----------------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """``nsim bake``: a scene checkpoint baked for fast sensors, as a ``baked-scene`` artifact.
 
 Input: a ``scene-checkpoint`` (``nsim train-scene``): its field and the occupancy grid baked at train
-time. The core (``nsim.rendering.baked``) puts a brick of lattice points into every occupied cell,
+time. The core (``nsim.rendering.bake_bricks``) puts a brick of lattice points into every occupied cell,
 stores the field's density and geometry features there, drops the bricks that hold no density (and, with
 ``cull_weight``, those no training camera sees: SNeRG's visibility culling, the training rays marched
 through the baked grid itself) and keeps the colour head with the mean appearance embedding; ``nsim render --set

@@ -16,7 +16,7 @@ outside the registered trajectory dropped), the frames that trained (their ``ima
 options enter the action key only when given: without them the key, and the artifact, are what
 they were.
 
-Artifact layout (see ``nsim.train.scene.export_scene``)::
+Artifact layout (see ``nsim.train.scene_export.export_scene``)::
 
     model.pt, scene.json       weights + everything that rebuilds the model (configs, scene box,
                                hash backend, which images trained); ``nsim.rendering.load_model``
@@ -59,7 +59,7 @@ from nsim.config import from_dict, to_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.stages.runner import cached, device_kind, rerun
-from nsim.train.scene import TrainSceneConfig
+from nsim.train.scene_config import TrainSceneConfig
 from nsim.train.scene_data import RecordingConfig
 from nsim.workspace.store import is_id
 
@@ -194,7 +194,7 @@ def publish(ctx: RunContext, key: str, inputs: Inputs, cfg: Config, source_kind:
             record: dict[str, Any] | None = None) -> str:
     """Export a finished training (``nsim.train.scene.TrainResult``) as the artifact of ``key``; ``record``:
     scene.json's ``recording`` key (robot frames trained)."""
-    from nsim.train.scene import export_scene
+    from nsim.train.scene_export import export_scene
 
     with ctx.store.publish(kind="scene-checkpoint", stage=STAGE, version=VERSION, key=key, config=cfg,
                            inputs=inputs.ids(), seed=ctx.seed) as out:

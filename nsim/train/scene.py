@@ -1,4 +1,6 @@
-"""Training the scene NeRF: data, losses, schedules, checkpoints (save / resume), evaluation.
+"""Training the scene NeRF: the trainer (``SceneTrainer``: batches, losses, schedules, checkpoints (save / resume),
+evaluation) and its loop (``train_scene``). Its configuration: ``nsim.train.scene_config``; the artifact it ends
+in: ``nsim.train.scene_export``.
 
 Input: a directory holding ``transforms.json`` (frames with poses and intrinsics, nerfstudio
 convention; a capture artifact or a poses artifact) and the images it names; optionally
@@ -27,7 +29,7 @@ Core API (what ``nsim/stages/train_scene.py`` calls)::
     data = SceneData.load(poses_dir, max_image_side=cfg.data.max_image_side)  # transforms.json + images
     result = train_scene(data, cfg, work_dir, device=ctx.device, seed=ctx.seed,
                          progress=ctx.show_progress)      # resumes from work_dir/last.pt
-    summary = export_scene(out.dir, result)               # the artifact's files; returns a summary
+    summary = export_scene(out.dir, result)               # nsim.train.scene_export: the artifact's files
 
 ``work_dir`` must survive the process (so that a killed run can resume) and be unique to the
 action key, e.g. ``store.root / "tmp" / f"train_scene.{key[:16]}.resume"``; the stage removes
@@ -38,11 +40,9 @@ it after publishing. Later stages load the artifact with ``nsim.rendering.load_m
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import math
 import os
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -52,25 +52,21 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from nsim.config import config_digest, param, to_dict
+from nsim.config import config_digest
 from nsim.errors import InputError
-from nsim.fields.scene_field import SceneFieldConfig
 from nsim.geometry.cameras import dirs_to_world
-from nsim.metrics.image import psnr, ssim
-from nsim.rendering.model import SamplerConfig, SceneModel
+from nsim.rendering.model import SceneModel
 from nsim.train import loop
 from nsim.train.loop import ResumableTrainer, StepStats, spread, step_seed
+from nsim.train.scene_config import TrainSceneConfig, in_scene_units
 from nsim.train.scene_data import (
-    BOUNDS_MODES,
     POINT_FILES,
-    DataConfig,
     SceneData,
     camera_to_point_median,
     scene_bounds,
     units_per_metre,
 )
 from nsim.train.scene_eval import (
-    EvalConfig,
     ViewRays,
     render_image,
     score_views,
@@ -80,145 +76,7 @@ from nsim.volume.rays import PoseRefinement, Rays, camera_dirs, make_rays
 
 log = logging.getLogger(__name__)
 
-#: Why a scene of arbitrary scale has no walkable map (scene.json's ``walkable_map``; nsim simulate says it too).
-NO_MAP_WITHOUT_SCALE = ("the poses' scale is arbitrary, so a robot's height band and a floor mean nothing in them; "
-                        "give nsim reconstruct a scale (--reference, --camera-height or --known-distance; --metric "
-                        "for an import whose poses are metric) and train again")
 DIRS_TABLE_MAX_BYTES = 256 << 20  # per-camera pixel-direction tables above this: directions per batch instead
-
-
-# ====================================================================== configuration
-@dataclass(frozen=True)
-class OptimConfig:
-    """Steps, batch and Adam with an exponentially decaying learning rate.
-
-    Each group's learning rate goes from ``lr_*`` (after a linear warm-up) to
-    ``lr_* * lr_final_factor`` at the last step. ``num_threads``: torch CPU threads (0 leaves
-    torch's default), per batch part; the training loop holds them and restores the count after
-    (``SceneTrainer.loop_threads``). ``mixed_precision``: fp16 autocast with a grad scaler, CUDA only.
-    ``batch_threads``: with ``k > 1`` parts, part ``j`` draws its jitter from ``(seed, step, j)``
-    and its loss is scaled by its share of the batch; each part's gradients come back from
-    ``torch.autograd.grad`` and are summed in part order, so the step is the whole batch's and
-    deterministic whichever thread finishes first.
-    """
-
-    steps: int = param(5000, ge=1)
-    rays_per_batch: int = param(4096, ge=1)
-    lr_field: float = param(1e-2, gt=0.0)
-    lr_proposal: float = param(1e-2, gt=0.0)
-    lr_pose: float = param(1e-4, gt=0.0)
-    lr_final_factor: float = param(0.03, gt=0.0, le=1.0)
-    warmup_steps: int = param(0, ge=0)
-    adam_eps: float = param(1e-15, gt=0.0)
-    adam_beta2: float = param(0.999, gt=0.0, lt=1.0, help="Adam's second-moment decay (instant-NGP uses 0.99)")
-    proposal_anneal_steps: int = param(1000, ge=0, help="steps over which proposal weights go from ^0.5 to ^1")
-    proposal_update_every: int = param(5, ge=1, help="train the proposal fields every N steps (after the warm-up)")
-    proposal_warmup_steps: int = param(1000, ge=0, help="steps over which the update interval grows from 1 to N")
-    pose_refinement: bool = param(False, help="optimise a per-image SE(3) correction (NeRF--)")
-    appearance_mean_share: float = param(0.0, ge=0.0, lt=1.0, help="fraction of each batch's rays rendered with "
-                                         "the training images' mean appearance code instead of their own "
-                                         "(appearance dropout): the colour MLP then learns what the mean code "
-                                         "draws, the images' average look, which is how a held-out view is "
-                                         "rendered and scored (the mean-embedding protocol)")
-    mixed_precision: bool = True
-    num_threads: int = param(2, ge=0, le=256)
-    batch_threads: int = param(1, ge=1, le=64, help="split each batch into this many parts whose forward and "
-                               "backward run on concurrent threads (CPU; each with num_threads torch threads): "
-                               "a 512-ray step at 1 torch thread runs 1.4x faster as 2 parts on 2 cores than "
-                               "as one on 2 torch threads")
-
-
-@dataclass(frozen=True)
-class LossConfig:
-    """Loss weights. ``free_space_*``: the proposal sampler only ever queries the scene field near
-    surfaces, so its density elsewhere is whatever initialisation left ("fog" that a marching
-    renderer, which queries everywhere, would see). This term draws ``free_space_samples`` points
-    per ray uniformly between ``near`` and ``free_space_margin_m`` before the first bin that
-    carries weight (of the last proposal stage or of the final samples, whichever is nearer: the
-    ray is transparent there), and penalises the field's density there (mean, 1/m), so
-    that marching, the occupancy grid and the obstacle map see the same scene as the training
-    renderer. It starts after ``free_space_start`` of the steps: applied while the geometry is
-    still wrong, it would hold surfaces back from moving towards the cameras."""
-
-    interlevel_weight: float = param(1.0, ge=0.0)
-    distortion_weight: float = param(0.002, ge=0.0)
-    free_space_weight: float = param(0.0, ge=0.0, help="density penalty in front of the visible surface (see below)")
-    free_space_samples: int = param(2, ge=1, le=64, help="free-space points per ray")
-    free_space_margin_m: float = param(0.2, ge=0.0)
-    free_space_start: float = param(0.5, ge=0.0, le=1.0, help="fraction of the steps before the free-space term starts")
-    random_background: bool = param(False, help="composite each training ray over a random colour instead of the "
-                                    "model's background, so that a surface seen in the images has to be opaque "
-                                    "(instant-NGP's trick for object captures; on the closed test room, applied from "
-                                    "step 0, it collapsed the geometry: 19.9 dB, AbsRel 0.90 at 1400 steps vs 24.7 dB)")
-    random_background_start: float = param(0.0, ge=0.0, le=1.0,
-                                           help="fraction of the steps before the random background starts")
-    opacity_weight: float = param(0.0, ge=0.0, help="binary entropy of each ray's accumulation: a ray should "
-                                  "either hit something or nothing, not see through a half-transparent wall")
-    opacity_start: float = param(0.0, ge=0.0, le=1.0, help="fraction of the steps before the opacity term starts")
-    depth_weight: float = param(0.0, ge=0.0, help="sparse-point depth supervision (needs sparse_points.ply)")
-    depth_rays_per_batch: int = param(256, ge=1)
-    image_depth_weight: float = param(0.0, ge=0.0, help="depth-image supervision (needs the frames' "
-                                      "depth_file_path): on every batch ray with depth, |expected range - "
-                                      "depth range| / depth range (image_depth_loss)")
-
-
-@dataclass(frozen=True)
-class OutputConfig:
-    """Logging, checkpoints, evaluation and the baked occupancy grid / obstacle map."""
-
-    log_every: int = param(50, ge=1)
-    checkpoint_every: int = param(1000, ge=1)
-    eval_every: int = param(0, ge=0, help="steps between evaluations during training (0: only at the end)")
-    eval_views: int = param(4, ge=0, help="held-out views scored during training (0: all)")
-    final_eval_views: int = param(0, ge=0, help="held-out views scored and rendered at the end (0: all)")
-    occupancy_cell_m: float = param(0.04, gt=0.0, help="3D occupancy grid cell size")
-    occupancy_density: float = param(1.0, gt=0.0, help="density (1/m) above which a cell of the rendering grid is "
-                                     "occupied; low, because the grid must not change the image: a NeRF's haze of "
-                                     "0.01/m over 5 m of free space is 5 % of a pixel")
-    occupancy_samples_per_cell: int = param(2, ge=1, le=64)
-    obstacle_band_m: tuple[float, float] = (0.1, 1.0)
-    obstacle_cell_m: float = param(0.05, gt=0.0)
-    obstacle_density: float = param(1.0, gt=0.0, help="density (1/m) above which a cell of the 2D obstacle map "
-                                    "is an obstacle unless training rays went through it (haze is carved away); "
-                                    "cells where training rays stop are obstacles whatever the density")
-    render_chunk_rays: int = param(8192, ge=1)
-    occupancy_max_cells: int = param(1 << 23, ge=1, help="the 3D grid's cells at most (its cells grow to fit): "
-                                     "bounds the bake's memory (~60 B a cell) and time for a large box")
-
-
-@dataclass(frozen=True)
-class TrainSceneConfig:
-    field: SceneFieldConfig = SceneFieldConfig()
-    sampler: SamplerConfig = SamplerConfig()
-    optim: OptimConfig = OptimConfig()
-    loss: LossConfig = LossConfig()
-    data: DataConfig = DataConfig()
-    output: OutputConfig = OutputConfig()
-    eval: EvalConfig = EvalConfig()
-
-
-def in_scene_units(cfg: TrainSceneConfig, units_per_m: float) -> TrainSceneConfig:
-    """``cfg`` with every length in metres multiplied by ``units_per_m`` and every density (1/m)
-    divided by it, so that a scene of arbitrary scale gets the near plane, box margin, cells and
-    bands a metric one would (the initial density too: ``field.density_bias`` shifts by ``-ln s``).
-    A fixed box (``data.aabb_*_m``) is taken to be in the poses' own units already. ``cfg`` itself
-    when ``units_per_m`` is 1."""
-    s = float(units_per_m)
-    if s == 1.0:
-        return cfg
-    sm, lo, out = cfg.sampler, cfg.loss, cfg.output
-    return replace(
-        cfg,
-        field=replace(cfg.field, density_bias=cfg.field.density_bias - math.log(s)),
-        sampler=replace(sm, near_m=sm.near_m * s, far_m=sm.far_m * s, lindisp_break_m=sm.lindisp_break_m * s,
-                        grid_cell_m=sm.grid_cell_m * s, grid_step_m=sm.grid_step_m * s,
-                        grid_density_threshold=sm.grid_density_threshold / s),
-        loss=replace(lo, free_space_margin_m=lo.free_space_margin_m * s),
-        data=replace(cfg.data, bounds_margin_m=cfg.data.bounds_margin_m * s),
-        output=replace(out, occupancy_cell_m=out.occupancy_cell_m * s, occupancy_density=out.occupancy_density / s,
-                       obstacle_band_m=(out.obstacle_band_m[0] * s, out.obstacle_band_m[1] * s),
-                       obstacle_cell_m=out.obstacle_cell_m * s, obstacle_density=out.obstacle_density / s),
-    )
 
 
 #: ``field.hash_max_resolution: 0`` (from the data) stays within these: the presets' 2048 at least (a small
@@ -555,7 +413,7 @@ class SceneTrainer(ResumableTrainer):
 
     def loop_threads(self) -> int:
         """torch's intra-op threads on the training loop's thread (``nsim.train.loop.train_loop`` sets them
-        once and restores them after; the post-training bakes and scoring of :func:`export_scene` use the
+        once and restores them after; the post-training bakes and scoring of ``scene_export.export_scene`` use the
         same): on a CPU ``optim.num_threads x optim.batch_threads``, the cores a step uses. A split batch's
         parts run on the worker threads at ``num_threads`` each (set when the pool starts); this thread
         builds the batch (indexing and element-wise work, whatever its thread count), sums the parts'
@@ -763,34 +621,12 @@ class SceneTrainer(ResumableTrainer):
         return out
 
 
-# ====================================================================== metrics (image and depth)
-def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """PSNR (dB) and SSIM (``nsim.metrics.image``: 11x11 Gaussian window, as Wang et al.) of (H, W, 3) in [0, 1]."""
-    return {"psnr": psnr(pred, gt), "ssim": ssim(pred, gt)}
-
-
-def constant_color_psnr(data: SceneData, holdout_every: int) -> float:
-    """PSNR of the training images' mean colour on the held-out frames (the trivial baseline), at the
-    training resolution."""
-    train, held = data.split(holdout_every)
-    mean = np.asarray(image_mean_rgb(data, train))
-    return float(np.mean([psnr(np.broadcast_to(mean, data.images[i].shape), data.images[i] / 255.0) for i in held]))
-
-
-def image_mean_rgb(data: SceneData, train_ids) -> list[float]:
-    """The mean colour of the training images' pixels, in [0, 1] (float64 sums, in a fixed order):
-    the least-squares guess for a pixel the capture never showed (``nsim render``'s ``fill``)."""
-    return [float(c) for c in data.images[np.asarray(train_ids)].reshape(-1, 3).mean(0, dtype=np.float64) / 255.0]
-
-
 # ====================================================================== the loop
 @dataclass
 class TrainResult(loop.TrainResult):
     """A scene training (``nsim.train.loop.TrainResult``) and the post-training phases' seconds."""
 
     post_train_seconds: dict[str, float] = field(default_factory=dict)  # export_scene's phases (not in any file)
-
-
 
 
 def train_scene(
@@ -818,193 +654,5 @@ def train_scene(
     return TrainResult(trainer, resumed)
 
 
-def occupancy_cell(aabb, cell_m: float, max_cells: int) -> float:
-    """``cell_m``, or the smallest cell (1 % steps) above it whose grid over ``aabb (2, 3)`` has at most
-    ``max_cells`` cells."""
-    from nsim.rendering.occupancy import grid_shape
-
-    aabb = np.asarray(torch.as_tensor(aabb).cpu(), dtype=np.float64)
-    if math.prod(grid_shape(aabb, cell_m)) <= max_cells:
-        return cell_m
-    cell = max(cell_m, float(np.prod(aabb[1] - aabb[0]) / max_cells) ** (1.0 / 3.0))
-    while math.prod(grid_shape(aabb, cell)) > max_cells:
-        cell *= 1.01
-    log.warning("occupancy grid: cells of %.4g instead of %.4g (at most %d cells over the box)", cell, cell_m, max_cells)
-    return cell
-
-
-def bake_occupancy(trainer: SceneTrainer):
-    """The 3D occupancy grid of the trained scene field (``output.occupancy_*``)."""
-    from nsim.rendering.occupancy import OccupancyGrid
-
-    out = trainer.cfg.output
-    g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "occupancy"))
-    cell = occupancy_cell(trainer.aabb, out.occupancy_cell_m, out.occupancy_max_cells)
-    return OccupancyGrid.bake(trainer.density_fn(), trainer.aabb, cell, out.occupancy_density,
-                              out.occupancy_samples_per_cell, dilate=1, generator=g, device=trainer.device)
-
-
-@torch.no_grad()
-def bake_obstacles(trainer: SceneTrainer, grid=None):
-    """The 2D obstacle map at ``output.obstacle_band_m`` (world z, metres), with the cells the training
-    views observed (their poses as trained, pose refinement included; unobserved cells are unknown).
-    ``grid``: the scene's occupancy grid (:func:`bake_occupancy`): the field is not evaluated in its empty cells."""
-    from nsim.rendering.occupancy import CameraViews, obstacle_map
-
-    out = trainer.cfg.output
-    model = trainer.model.eval()
-    g = torch.Generator().manual_seed(_step_seed(trainer.seed, 0, "obstacles"))
-    ids = np.asarray(trainer.train_ids, dtype=np.int64)
-    cam_to_world = trainer.data.cam_to_world[ids]
-    if trainer.pose_refine is not None:
-        idx = torch.as_tensor(ids, device=trainer.device)
-        cam_to_world = trainer.pose_refine(trainer.cam_to_world[idx], idx).double().cpu().numpy()
-    views = CameraViews(cam_to_world, tuple(trainer.data.cameras), trainer.data.camera_index[ids],
-                        trainer.cfg.sampler.near_m, trainer.cfg.sampler.far_m)
-    return obstacle_map(lambda x: model.field.density(x)[0], trainer.aabb, out.obstacle_band_m, out.obstacle_cell_m,
-                        out.obstacle_density, out.occupancy_samples_per_cell, generator=g, device=trainer.device,
-                        views=views, skip=grid)
-
-
-def plot_curves(path: Path, history: list[dict[str, float]]) -> None:
-    """Training loss and PSNR (train batches; held-out views when evaluated) against steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), dpi=90)
-    if history:
-        steps = [h["step"] for h in history]
-        axes[0].semilogy(steps, [h["loss"] for h in history], label="loss")
-        for key in ("interlevel", "distortion", "free_space"):
-            if all(key in h for h in history):
-                axes[0].semilogy(steps, [h[key] for h in history], label=key, alpha=0.7)
-        axes[0].set_xlabel("step")
-        axes[0].legend()
-        axes[1].plot(steps, [h["psnr_train"] for h in history], label="train batch PSNR")
-        ev = [(h["step"], h["eval_psnr"]) for h in history if "eval_psnr" in h]
-        if ev:
-            axes[1].plot(*zip(*ev, strict=True), "o-", label="held-out PSNR")
-        axes[1].set_xlabel("step")
-        axes[1].set_ylabel("dB")
-        axes[1].legend()
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
-
-
-def export_scene(out_dir: str | os.PathLike, result: TrainResult) -> dict[str, Any]:
-    """Write everything the stage publishes into ``out_dir``; returns the summary.
-
-    Files: ``model.pt`` + ``scene.json`` (weights and what rebuilds the model: configs, scene
-    box, hash backend, training images), ``bounds.json``, ``occupancy_grid.npy`` + ``.json`` (3D grid),
-    ``obstacles.png`` + ``obstacles.json`` (2D map and polygons at the height band; only for a metric
-    scene: a robot's height band and a floor mean nothing in arbitrary units, see ``NO_MAP_WITHOUT_SCALE``),
-    ``curves.png`` + ``history.json`` (against steps), ``eval/<frame>.png`` (render | ground
-    truth, at the scored size) and ``eval.json`` (per view: PSNR / SSIM / LPIPS with the mean
-    appearance embedding, the left-half fit's right-half ``*_half`` scores, depth AbsRel; which
-    resolution was scored; what each score is). ``scene.json`` and ``bounds.json`` say whether the
-    scene is metric (``"metric"``; ``"units": "arbitrary"`` otherwise, lengths in the poses' units).
-    No file holds a timing, so a rerun on CPU writes the same bytes (the artifact id repeats); the
-    training seconds are in ``result.trainer.train_seconds`` for the caller to report.
-    """
-    from nsim.rendering.model import save_model
-
-    trainer = result.trainer
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    cfg = trainer.cfg
-    data = trainer.data
-    save_model(out_dir, trainer.model, extra={
-        "images": data.names,
-        "train_images": [int(i) for i in trainer.train_ids],
-        "eval_images": [int(i) for i in trainer.eval_ids],
-        "steps": trainer.step,
-        "image_mean_rgb": image_mean_rgb(data, trainer.train_ids),
-        "image_size_trained": [int(data.size_hw[1]), int(data.size_hw[0])],
-        **scale_record(trainer),
-    })
-    aabb = trainer.aabb.tolist()
-    if data.metric:
-        bounds = {"units": "m", "metric": True, "frame": "world, z up", "aabb_min_m": aabb[0], "aabb_max_m": aabb[1],
-                  "near_m": cfg.sampler.near_m, "far_m": cfg.sampler.far_m}
-    else:  # no metre anywhere: lengths in the poses' own units
-        bounds = {"units": "arbitrary", "metric": False, "frame": "world, z up (as the poses give it)",
-                  "aabb_min": aabb[0], "aabb_max": aabb[1], "near": cfg.sampler.near_m, "far": cfg.sampler.far_m,
-                  "units_per_m_guess": trainer.units_per_m}
-    (out_dir / "bounds.json").write_text(json.dumps(bounds, indent=1) + "\n")
-    phases = result.post_train_seconds
-    t0 = time.perf_counter()
-    with loop.torch_threads(trainer.loop_threads()):  # plain tensor work: on every core training used
-        grid = bake_occupancy(trainer)
-        grid.save(out_dir / "occupancy_grid.npy")
-        if not data.metric:  # the grid's own JSON says metres; its box key stays for OccupancyGrid.load
-            meta = json.loads((out_dir / "occupancy_grid.json").read_text())
-            meta.update({"units": "arbitrary", "metric": False})
-            (out_dir / "occupancy_grid.json").write_text(json.dumps(meta, indent=1) + "\n")
-        # obstacles.json = occupancy.json (polygons with holes, read by nsim simulate), obstacles.png,
-        # obstacle_cells.npy / .png (free / occupied / unknown) and the nav2 map map.yaml + map.pgm
-        phases["occupancy_grid"] = round(time.perf_counter() - t0, 2)
-        if data.metric:
-            t0 = time.perf_counter()
-            bake_obstacles(trainer, grid).save(out_dir)
-            phases["walkable_map"] = round(time.perf_counter() - t0, 2)
-        else:
-            log.warning("no walkable map: %s", NO_MAP_WITHOUT_SCALE)
-    history = [{k: v for k, v in h.items() if k != "train_seconds"} for h in trainer.history]
-    plot_curves(out_dir / "curves.png", history)
-    (out_dir / "history.json").write_text(json.dumps(history, indent=1) + "\n")
-    views = spread(list(trainer.eval_ids), cfg.output.final_eval_views)
-    summary: dict[str, Any] = {"steps": trainer.step, "occupied_fraction": grid.occupied_fraction}
-    if views:
-        t0 = time.perf_counter()
-        (out_dir / "eval").mkdir(exist_ok=True)
-        with loop.torch_threads(trainer.loop_threads()):  # chunks on the part threads, fit and LPIPS here
-            ev = trainer.evaluate(views, final=True, image_dir=out_dir / "eval")
-        phases["heldout_scores"] = round(time.perf_counter() - t0, 2)
-        (out_dir / "eval.json").write_text(json.dumps({
-            "resolution": ev["resolution"], "protocol": ev["protocol"], "views": ev["views"], "mean": ev["mean"],
-            "constant_color_psnr": constant_color_psnr(data, cfg.data.holdout_every)}, indent=1) + "\n")
-        summary.update({f"eval_{k}": round(v, 4) for k, v in ev["mean"].items()})
-        summary["eval_image_size"] = ev["resolution"]["scored_wh"]
-    result.evaluation = summary
-    return summary
-
-
-def scale_record(trainer: SceneTrainer) -> dict[str, Any]:
-    """What scene.json says about the scene's units (``metric``; for arbitrary scale, the guess that sized
-    the trainer's lengths: the config's metre values times ``units_per_m``)."""
-    data = trainer.data
-    return {"metric": bool(data.metric), "units": "m" if data.metric else "arbitrary",
-            "scale_source": data.scale_source, "units_per_m": trainer.units_per_m, "units_per_m_from": trainer.units_from,
-            "walkable_map": "occupancy.json" if data.metric else None,
-            **({} if data.metric else {"walkable_map_why_not": NO_MAP_WITHOUT_SCALE})}
-
-
-def config_json(cfg: TrainSceneConfig) -> str:
-    return json.dumps(to_dict(cfg), indent=1, sort_keys=True)
-
-
-__all__ = [
-    "BOUNDS_MODES",
-    "POINT_FILES",
-    "DataConfig",
-    "EvalConfig",
-    "LossConfig",
-    "OptimConfig",
-    "OutputConfig",
-    "SceneData",
-    "SceneTrainer",
-    "TrainResult",
-    "TrainSceneConfig",
-    "bake_obstacles",
-    "bake_occupancy",
-    "export_scene",
-    "constant_color_psnr",
-    "image_metrics",
-    "in_scene_units",
-    "psnr",
-    "scene_bounds",
-    "train_scene",
-]
+__all__ = ["AUTO_HASH_RESOLUTION", "SceneTrainer", "TrainResult", "finest_hash_resolution", "image_depth_loss",
+           "train_scene", "z_depth_to_range"]

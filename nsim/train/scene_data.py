@@ -658,6 +658,12 @@ def units_per_metre(data: SceneData) -> tuple[float, str]:
     return 1.0, "nothing to measure: 1 unit per metre assumed"
 
 
+def image_mean_rgb(data: SceneData, train_ids) -> list[float]:
+    """The mean colour of the training images' pixels, in [0, 1] (float64 sums, in a fixed order):
+    the least-squares guess for a pixel the capture never showed (``nsim render``'s ``fill``)."""
+    return [float(c) for c in data.images[np.asarray(train_ids)].reshape(-1, 3).mean(0, dtype=np.float64) / 255.0]
+
+
 # ====================================================================== a robot's recorded frames
 @dataclass(frozen=True, eq=False)
 class RecordedFrame:

@@ -51,6 +51,7 @@ from nsim.fields.encodings import spherical_harmonics
 from nsim.geometry.cameras import dirs_to_world
 from nsim.metrics.depth import DepthConfig
 from nsim.rendering.model import SceneModel
+from nsim.train.scene_data import SceneData, image_mean_rgb
 from nsim.volume.rays import make_rays
 
 LPIPS_NETS = ("alex", "vgg", "none")
@@ -434,6 +435,16 @@ def mean_scores(rows: list[dict[str, Any]]) -> dict[str, float]:
         if vals:
             out[k] = float(np.mean(vals))
     return out
+
+
+def constant_color_psnr(data: SceneData, holdout_every: int) -> float:
+    """PSNR of the training images' mean colour on the held-out frames (the trivial baseline), at the
+    training resolution."""
+    from nsim.metrics.image import psnr
+
+    train, held = data.split(holdout_every)
+    mean = np.asarray(image_mean_rgb(data, train))
+    return float(np.mean([psnr(np.broadcast_to(mean, data.images[i].shape), data.images[i] / 255.0) for i in held]))
 
 
 def protocol(cfg: EvalConfig, seed_note: str) -> dict[str, str]:

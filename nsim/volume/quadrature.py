@@ -8,7 +8,8 @@ with density ``sigma_i`` (1/m) and colour ``c_i``:
     T_i     = exp(-sum_{j<i} sigma_j delta_j) = prod_{j<i} (1 - alpha_j)
     w_i     = T_i alpha_i,      C = sum_i w_i c_i + (1 - sum_i w_i) c_background
 
-Shapes: rays ``(R,)``, samples ``(R, S)``, bin edges ``(R, S + 1)``. The proposal-sampler
+Shapes: rays ``(R,)``, samples ``(R, S)``, bin edges ``(R, S + 1)``; packed samples (``packed_*``: the
+samples of all rays in one array, grouped by ray) ``(K,)`` with a ray index each. The proposal-sampler
 losses of mip-NeRF 360 (``interlevel_loss``, ``distortion_loss``) take bin edges in the
 normalised *spacing* coordinate ``s`` in ``[0, 1]`` (see ``samplers``), as the paper does.
 """
@@ -28,6 +29,30 @@ def render_weights(sigma: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor]:
     accumulated = torch.cumsum(sigma_delta, dim=-1)
     transmittance = torch.exp(-torch.cat([torch.zeros_like(accumulated[..., :1]), accumulated[..., :-1]], dim=-1))
     return transmittance * alpha, transmittance
+
+
+def packed_optical_depth(sigma: Tensor, deltas: Tensor, ray: Tensor) -> tuple[Tensor, Tensor]:
+    """Optical depth of *packed* samples (the samples of many rays in one flat array, as marchers keep them).
+
+    sigma, deltas: ``(K,)`` densities (1/m) and interval lengths; ray: ``(K,)`` int64, each sample's ray, the
+    samples grouped by ray (a ray's all consecutive) and in order along it. Returns, both ``(K,)`` float64,
+    ``tau = sigma * delta`` of each sample and ``before``, the sum of ``tau`` over the samples before it on its
+    ray: its transmittance is ``T = exp(-before)`` (:func:`render_weights`'s ``T`` for the padded layout). Summed
+    in float64 along the whole array, each ray's sum at its first sample subtracted."""
+    tau = (sigma * deltas).double()
+    excl = torch.cumsum(tau, 0) - tau
+    new_ray = torch.ones_like(ray, dtype=torch.bool)
+    new_ray[1:] = ray[1:] != ray[:-1]
+    first = torch.cummax(torch.where(new_ray, torch.arange(len(ray), device=ray.device), 0), 0)[0]
+    return tau, excl - excl[first]
+
+
+def packed_render_weights(sigma: Tensor, deltas: Tensor, ray: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`render_weights` for packed samples (:func:`packed_optical_depth`'s layout): ``w (K,)`` and ``T (K,)``,
+    float64, ``w = T * (1 - exp(-sigma delta))``."""
+    tau, before = packed_optical_depth(sigma, deltas, ray)
+    transmittance = torch.exp(-before)
+    return transmittance * -torch.expm1(-tau), transmittance
 
 
 def accumulate(weights: Tensor, values: Tensor) -> Tensor:

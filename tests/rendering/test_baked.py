@@ -1,5 +1,6 @@
-"""The baked scene (``nsim.rendering.baked``): the bake keeps the field's values, the fast marcher agrees with a
-plain dense twin, files round-trip byte for byte, bad files are one line, people composite over it."""
+"""The baked scene (``nsim.rendering.baked``, baked by ``nsim.rendering.bake_bricks``): the bake keeps the
+field's values, the fast marcher agrees with a plain dense twin, files round-trip byte for byte, bad files are
+one line, people composite over it."""
 
 from __future__ import annotations
 
@@ -13,11 +14,10 @@ import torch
 
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
+from nsim.rendering.bake_bricks import BakeConfig, bake
 from nsim.rendering.baked import (
-    BakeConfig,
     BakedScene,
     ColorDecoder,
-    bake,
     density_at,
     features_at,
     locate,
@@ -263,9 +263,8 @@ def test_decoder_folds_the_appearance_code(model):
 def test_people_composite_over_the_baked_scene(baked):
     """``HumanSet.composite`` with the baked scene's samples: the same depth-ordered merge as
     ``compositing.composite_sets`` of the baked samples and the person's."""
-    from types import SimpleNamespace
-
-    from nsim.rendering.people import HumanSet
+    from nsim.rendering.people import CompositeConfig, HumanSet, PersonView
+    from nsim.rendering.renderer import MarchConfig
     from nsim.volume.compositing import composite_sets
     from nsim.volume.samples import RaySamples
     from tests.rendering.people_fixture import opaque_person
@@ -278,8 +277,8 @@ def test_people_composite_over_the_baked_scene(baked):
     rays = make_rays(origins, torch.nn.functional.normalize(target - origins, dim=-1), 0.05, 30.0, AABB)
     light = dataclasses.replace(baked, density=baked.density * 0.05)  # a haze before and behind the person
     scene = render_baked(light, rays, return_samples=True)
-    people = [{"k": 0, "T": T, "model": person, "mask": torch.ones(n, dtype=torch.bool)}]
-    cfg = SimpleNamespace(method="baked", march=None, chunk_rays=1024, culling=True)
+    people = [PersonView(k=0, joint_transforms=T, model=person, ray_mask=torch.ones(n, dtype=torch.bool))]
+    cfg = CompositeConfig(method="baked", march=MarchConfig(), chunk_rays=1024, culling=True)
     out, instance = HumanSet([person], {}, "cpu").composite(None, None, rays, people, cfg,
                                                             scene_out=dataclasses.replace(scene, rgb=scene.rgb.clone()))
     with torch.no_grad():
@@ -298,7 +297,7 @@ def test_visibility_culling_drops_what_no_camera_sees(baked):
     """A wall of 0.5 m cells (tau 25 across) seen head-on by a bundle of rays: the wall where the rays hit it
     and a thin brick in front of it stay; a brick behind the wall, one outside the bundle and the wall's
     unseen part go, and the kept bricks render the bundle as before."""
-    from nsim.rendering.baked import brick_visibility, cull
+    from nsim.rendering.bake_bricks import brick_visibility, cull
 
     shape = (6, 4, 4)
     b = 2
@@ -420,7 +419,7 @@ def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
     nerf_fallback_voxels of the median depth), nerf_fallback_accumulation: those whose baked accumulation stays
     below it, take the NeRF's outputs; the other rays, a LiDAR's rays and rays rendered with their samples (the
     people's merge) are the baked scene's as before."""
-    from nsim.rendering.baked import _march, fallback_rays
+    from nsim.rendering.baked import fallback_rays, march
     from nsim.rendering.renderer import PER_RAY_FIELDS, render_rays
 
     plain = dataclasses.replace(baked, field_samples=4).with_field(model.field)
@@ -437,7 +436,7 @@ def test_fallback_rays_take_the_nerfs_outputs(baked, model, rule):
     before = render_baked(plain, rays, fallback=nerf)
     assert not calls  # no share set: no fallback
     after = render_baked(hybrid, rays, fallback=nerf)
-    ray, t0, t1, sigma, _, _ = _march(hybrid, rays)
+    ray, t0, t1, sigma, _, _ = march(hybrid, rays)
     counts = torch.bincount(ray, minlength=len(rays))
     slot = torch.arange(len(ray)) - (torch.cumsum(counts, 0) - counts)[ray]
     s_pad = int(counts.max())

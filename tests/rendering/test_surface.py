@@ -15,7 +15,8 @@ import torch
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.rendering import surface as surf
-from nsim.rendering.baked import BakeConfig, BakedScene, bake, render_baked, training_rays
+from nsim.rendering.bake_bricks import BakeConfig, bake, training_rays
+from nsim.rendering.baked import BakedScene, render_baked
 from nsim.rendering.model import SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
 from nsim.volume.rays import make_rays
@@ -208,7 +209,7 @@ def test_texture_from_the_training_images(scene):
     model, grid, frames, _ = scene
     grey = [np.full((30, 40, 3), 77, np.uint8) for _ in frames]
     cfg = dataclasses.replace(SURFACE, texture_steps=150, texture_lr=0.02)
-    from nsim.rendering.baked import bake_passes, bake_surface, nerf_targets
+    from nsim.rendering.bake_bricks import bake_passes, bake_surface, nerf_targets
 
     volume = bake_passes(model, grid, cfg, frames, lambda plan, c, _n: _evaluate(model, plan, c))
     baked = bake_surface(model, volume, cfg, frames, lambda r: nerf_targets(model, grid, r), images=grey)
@@ -222,7 +223,7 @@ def test_texture_from_the_training_images(scene):
 
 
 def _evaluate(model, plan, c):
-    from nsim.rendering.baked import evaluate_lattice
+    from nsim.rendering.bake_bricks import evaluate_lattice
 
     parts = [evaluate_lattice(model.field, plan, c, a, min(plan.n_points, a + c.chunk_points))
              for a in range(0, plan.n_points, c.chunk_points)]
@@ -277,9 +278,8 @@ def test_people_composite_over_the_surface_in_depth_order():
     """The people's merge (``HumanSet.composite``) over a surface: a person before the wall shows, a wall before
     the person hides it; the same result as ``compositing.composite_sets`` of the surface's one opaque sample and
     the person's samples."""
-    from types import SimpleNamespace
-
-    from nsim.rendering.people import HumanSet
+    from nsim.rendering.people import CompositeConfig, HumanSet, PersonView
+    from nsim.rendering.renderer import MarchConfig
     from nsim.volume.compositing import composite_sets
     from nsim.volume.samples import RaySamples
     from tests.rendering.people_fixture import opaque_person
@@ -292,8 +292,8 @@ def test_people_composite_over_the_surface_in_depth_order():
     rays = make_rays(origins, torch.nn.functional.normalize(target - origins, dim=-1), 0.05, 30.0)
     y = float(target[0, 1])
     aabb = torch.tensor([[-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]])
-    people = [{"k": 0, "T": T, "model": person, "mask": torch.ones(n, dtype=torch.bool)}]
-    cfg = SimpleNamespace(method="baked", march=None, chunk_rays=1024, culling=True)
+    people = [PersonView(k=0, joint_transforms=T, model=person, ray_mask=torch.ones(n, dtype=torch.bool))]
+    cfg = CompositeConfig(method="baked", march=MarchConfig(), chunk_rays=1024, culling=True)
     with torch.no_grad():
         hs = person.render_samples(rays.origins, rays.dirs, torch.as_tensor(T, dtype=torch.float32), rays.near,
                                    rays.far, box_test=True)

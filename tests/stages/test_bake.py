@@ -117,7 +117,7 @@ def test_resume_after_a_crash_gives_the_same_artifact(world, monkeypatch):
 
     from nsim.config import load_config
     from nsim.context import RunContext
-    from nsim.rendering import baked as core
+    from nsim.rendering import bake_bricks as core
     from nsim.stages import bake
 
     cfg = dataclasses.replace(load_config(bake.Config, stage="bake", preset="tiny"), chunk_points=512, surface=False)
@@ -146,7 +146,7 @@ def test_on_demand_bake_is_the_default_bake(world, monkeypatch):
     the test stays small): the images of a render given the tiny preset's artifact."""
     from nsim.config import load_config
     from nsim.io.images import read_image
-    from nsim.rendering import baked as core
+    from nsim.rendering import bake_bricks as core
 
     tiny = load_config(core.BakeConfig, stage="bake", preset="tiny", overrides=["surface=false"])
     monkeypatch.setattr(core, "BakeConfig", lambda: tiny)

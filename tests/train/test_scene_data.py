@@ -12,7 +12,7 @@ import pytest
 
 from nsim.config import from_dict
 from nsim.io.images import read_image
-from nsim.train.scene import TrainSceneConfig, in_scene_units
+from nsim.train.scene_config import TrainSceneConfig, in_scene_units
 from nsim.train.scene_data import (
     ROOM_CAMERA_TO_POINT_M,
     SceneData,

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from nsim.io.labels import LABEL_HEIGHT_PX
-from nsim.train.scene import SceneTrainer, export_scene, train_scene
+from nsim.train.scene import SceneTrainer, train_scene
 from nsim.train.scene_eval import (
     PROTOCOL_HALF,
     RECOLOUR_COEFFICIENT,
@@ -21,6 +21,7 @@ from nsim.train.scene_eval import (
     pixel_rays,
     render_image,
 )
+from nsim.train.scene_export import export_scene
 from tests.train.test_scene import micro_cfg
 
 
@@ -250,7 +251,7 @@ def test_occupancy_cells_grow_to_stay_under_the_cap():
     import math
 
     from nsim.rendering.occupancy import grid_shape
-    from nsim.train.scene import occupancy_cell
+    from nsim.train.scene_export import occupancy_cell
 
     aabb = np.array([[0.0, 0.0, 0.0], [10.0, 8.0, 3.0]])
     assert occupancy_cell(aabb, 0.1, 10**9) == 0.1

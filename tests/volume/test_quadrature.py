@@ -37,6 +37,31 @@ def test_matches_loop_reference():
     assert (w.sum(-1) <= 1 + 1e-12).all()
 
 
+def test_packed_weights_match_the_padded_layout():
+    """Samples of rays of 0..6 samples (one empty) packed into one array, ray-major: the same weights and
+    transmittance as ``render_weights`` of the padded ``(R, S)`` layout (zero-density padding at the end), whose
+    optical depths are ``packed_optical_depth``'s."""
+    g = torch.Generator().manual_seed(1)
+    counts = torch.tensor([3, 0, 6, 1, 4, 2])
+    k = int(counts.sum())
+    sigma = torch.rand(k, generator=g) * 20
+    delta = torch.rand(k, generator=g) * 0.1
+    ray = torch.repeat_interleave(torch.arange(len(counts)), counts)
+    slot = torch.arange(k) - (torch.cumsum(counts, 0) - counts)[ray]
+    sigma_p = torch.zeros(len(counts), int(counts.max())).index_put((ray, slot), sigma)
+    delta_p = torch.zeros_like(sigma_p).index_put((ray, slot), delta)
+    w_p, trans_p = quadrature.render_weights(sigma_p, delta_p)
+    w, trans = quadrature.packed_render_weights(sigma, delta, ray)
+    assert w.dtype == trans.dtype == torch.float64 and w.shape == trans.shape == (k,)
+    assert_close(w.float(), w_p[ray, slot], rtol=1e-5, atol=1e-6)
+    assert_close(trans.float(), trans_p[ray, slot], rtol=1e-5, atol=1e-6)
+    tau, before = quadrature.packed_optical_depth(sigma, delta, ray)
+    assert_close(tau, (sigma * delta).double())
+    assert_close(before[slot == 0], torch.zeros(int((counts > 0).sum()), dtype=torch.float64))
+    empty = torch.zeros(0, dtype=torch.int64)
+    assert quadrature.packed_render_weights(torch.zeros(0), torch.zeros(0), empty)[0].shape == (0,)
+
+
 def test_opaque_wall_depths():
     t = torch.linspace(0, 10, 101)[None]
     sigma = torch.zeros(1, 100)
