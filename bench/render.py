@@ -10,7 +10,7 @@ Uses the default capture (robot-lab, 320x240, ground-truth poses) and a scene ch
 Measures, with the same renderer the stage uses (marching + occupancy grid):
 
 1. held-out capture views (``nsim render --poses``, ``frames=heldout``): PSNR / SSIM against
-   the captured images, depth AbsRel (``nsim.metrics.depth``, see ``abs_rel``) of the median depth
+   the captured images, depth AbsRel (``nsim.metrics.depth_accuracy``, see ``abs_rel``) of the median depth
    against the capture's z-depth, beside
    train-scene's own held-out PSNR (``eval.json``; the proposal renderer);
 2. LiDAR: Spot's VLP-16-like LiDAR along the simulated ``spot_run``, no noise, against the
@@ -50,7 +50,7 @@ NeRF (``method: proposal``, the stage's default), side by side in one run:
    capture's depth;
 8. Spot along ``spot_run`` (``--ticks``, ``--image-scale``) with both: PSNR / SSIM / LPIPS baked against NeRF
    over the oracle's valid pixels, each one's depth AbsRel against the oracle and LiDAR median range error
-   against the oracle's exact scan (``nsim.metrics.lidar``);
+   against the oracle's exact scan (``nsim.metrics.lidar_realism``);
 9. speed: rays/s in-process on one tick's rays (cameras at ``--image-scale`` + LiDAR; the NeRF on a random
    ``--nerf-rays`` of them), 2 threads, the stage's chunk, each renderer as the stage runs it (the baked scene
    with the scene field attached, its LiDAR rays without colour); the wall time of one full Spot tick (five
@@ -89,11 +89,11 @@ SPOT = configs_dir() / "robots" / "spot.yaml"
 
 
 def abs_rel(pred: np.ndarray, gt: np.ndarray) -> float:
-    """AbsRel of ``nsim.metrics.depth`` per view (``view_abs_rel``, its default ``DepthConfig``: ground truth
+    """AbsRel of ``nsim.metrics.depth_accuracy`` per view (``view_abs_rel``, its default ``DepthConfig``: ground truth
     within 1 mm..10 m, predictions clamped into that range, so a rendered ``inf`` counts as 10 m) over the
     pixels whose prediction is a number (NaN: no ray, or nearer than the camera's minimum depth); NaN if
     none counts. The held-out scores of ``nsim train-scene`` (eval.json) are the same metric."""
-    from nsim.metrics.depth import view_abs_rel
+    from nsim.metrics.depth_accuracy import view_abs_rel
 
     return view_abs_rel(pred, gt)
 
@@ -635,7 +635,7 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
     from nsim.io.images import read_image
     from nsim.io.lidar_exr import read_lidar_exr
     from nsim.io.transforms_json import read_transforms
-    from nsim.metrics.lidar import lidar_range_metrics
+    from nsim.metrics.lidar_realism import lidar_range_metrics
     from nsim.sensors.rig import Rig
     from nsim.stages import bake
 

@@ -56,7 +56,7 @@ sys.path.insert(0, str(REPO))
 
 from nsim.context import RunContext  # noqa: E402
 from nsim.errors import NsimError  # noqa: E402
-from nsim.metrics.tables import NotAvailable  # noqa: E402
+from nsim.metrics.results_table import NotAvailable  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
 

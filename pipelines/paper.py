@@ -398,7 +398,7 @@ def robot_log_of_run(ctx: RunContext, size: str, trajectory: str) -> Path:
     import shutil
 
     from nsim.config import to_dict
-    from nsim.synth.robot_log import TRUTH_VERSION, truth_path
+    from nsim.synth.faulty_robot_log import TRUTH_VERSION, truth_path
 
     cfg = rec_cfg(capture.RobotLogConfig, "robot_log", size, "robot_log")
     rig = REPO / "nsim" / "configs" / "robots" / "spot.yaml"
@@ -466,7 +466,7 @@ def run_recording(ctx: RunContext, size: str, request: RecordingRequest, spot: S
                   out_dir: Path | None = None) -> RecordingRun:
     """import-log -> register-log -> render --recording -> evaluate (the five tables) of ``request``'s log, or of the
     realistic log of ``spot``'s run written here (then also the twin render and its oracle tables)."""
-    from nsim.synth.robot_log import truth_path
+    from nsim.synth.faulty_robot_log import truth_path
 
     store = ctx.store
     if request.log is None and spot is None:

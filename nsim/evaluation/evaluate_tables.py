@@ -16,12 +16,12 @@ robot's recording) for its pairs, and computes only metrics (``nsim.metrics``) a
     correction (``nsim.metrics.colour``: a 3x4 least-squares map from simulated to real colours,
     fitted on the camera's scored frames), columns ``PSNR cc``, ``SSIM cc``, ``LPIPS cc``.
 ``spot-depth`` (Table II)
-    Per depth camera: AbsRel, SqRel, RMSE, logRMSE, delta thresholds (``nsim.metrics.depth``).
+    Per depth camera: AbsRel, SqRel, RMSE, logRMSE, delta thresholds (``nsim.metrics.depth_accuracy``).
 ``lidar``
     Per LiDAR, point for point: range error median / mean / p95 and bias over the points both
     return (pooled over frames), Chamfer distance (mean over frames, sensor frame), hit agreement
     and the fractions that return in the simulation only and in reality only
-    (``nsim.metrics.lidar``).
+    (``nsim.metrics.lidar_realism``).
 ``slam``
     One camera (``slam.camera``): pycolmap incremental SfM (``nsim.metrics.slam.run_colmap_slam``)
     on the simulated and on the real frames, the ATE of each against the camera's true poses; a
@@ -52,12 +52,12 @@ from nsim.evaluation.truth import GroundTruth
 if TYPE_CHECKING:
     from nsim.io.tum import Trajectory
     from nsim.metrics.paper_tables import DepthRecord, ImageRecord, SlamRecord
-    from nsim.metrics.tables import Table
+    from nsim.metrics.results_table import Table
 
 
 @dataclasses.dataclass(frozen=True)
 class LidarRecord:
-    """One LiDAR sweep against the real one (``nsim.metrics.lidar``; None: no point returned on both sides)."""
+    """One LiDAR sweep against the real one (``nsim.metrics.lidar_realism``; None: no point returned on both sides)."""
 
     group: str
     frame: int
@@ -276,7 +276,7 @@ def table_spot_rgb(ev: Evaluation) -> Result:
 
 def _merge_corrected(raw, cc):
     """``raw``'s table with ``cc``'s metric columns beside each camera's raw ones (named ``<metric> cc``)."""
-    from nsim.metrics.tables import Column
+    from nsim.metrics.results_table import Column
 
     metrics = [c for c in raw.columns if c.direction]
     by_camera = {row["Camera"][: -len(CC)]: row for row in cc.rows}
@@ -311,7 +311,7 @@ LIDAR_COLUMNS = ("range err median [m]", "range err mean [m]", "range err p95 [m
 
 def lidar_table(groups: dict[str, tuple[Any, list[LidarRecord]]]) -> Any:
     """Per LiDAR: ``(pooled LidarRangeMetrics, per-frame records)`` -> the table (module docstring)."""
-    from nsim.metrics.tables import Column, NotAvailable, Table
+    from nsim.metrics.results_table import Column, NotAvailable, Table
 
     na_range = NotAvailable("no point returned in both the simulation and the recording")
     columns = (Column("LiDAR"), Column(LIDAR_COLUMNS[0], "lower", 3), Column(LIDAR_COLUMNS[1], "lower", 3),
@@ -342,7 +342,7 @@ def lidar_table(groups: dict[str, tuple[Any, list[LidarRecord]]]) -> Any:
 
 
 def table_lidar(ev: Evaluation) -> Result:
-    from nsim.metrics.lidar import chamfer_distance, lidar_range_metrics
+    from nsim.metrics.lidar_realism import chamfer_distance, lidar_range_metrics
 
     truth = ev.truth
     records, extras, groups = [], [], {}
@@ -369,7 +369,7 @@ def table_lidar(ev: Evaluation) -> Result:
 # ---------------------------------------------------------------------------------- slam
 def table_slam(ev: Evaluation) -> Result:
     from nsim.metrics.paper_tables import SlamRecord, slam_table
-    from nsim.metrics.tables import NotAvailable
+    from nsim.metrics.results_table import NotAvailable
 
     cfg = ev.cfg.slam
     records, extras, files = [], [], {}
@@ -411,7 +411,7 @@ def _slam_side(frames: list[np.ndarray], times: np.ndarray, cfg, seed: int):
 
 
 def _ate_or_na(truth, traj, cfg, side: str):
-    from nsim.metrics.tables import NotAvailable
+    from nsim.metrics.results_table import NotAvailable
     from nsim.metrics.trajectory import ate
 
     try:
@@ -492,7 +492,7 @@ def _people_notes(people: list[dict[str, Any]]) -> list[str]:
 def table_detection(ev: Evaluation) -> Result:
     from nsim.metrics.detection import MatchConfig, compare_detections, read_coco_detections
     from nsim.metrics.paper_tables import detection_table
-    from nsim.metrics.tables import NotAvailable, Table
+    from nsim.metrics.results_table import NotAvailable, Table
 
     cfg, truth = ev.cfg.detection, ev.truth
     if truth.source == "oracle":

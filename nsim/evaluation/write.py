@@ -4,7 +4,7 @@ Layout::
 
     evaluation.json            table, renders, ground-truth source per render, lineage, notes, counts
                                (and ``details`` where the table has more, e.g. colour-correction maps)
-    <table>.md/.tex/.csv/.json the table (``nsim.metrics.tables.Table.write_all``)
+    <table>.md/.tex/.csv/.json the table (``nsim.metrics.results_table.Table.write_all``)
     records.json               per-frame records (the table's inputs) and per-frame extras
     plots/*_per_frame.png      per-frame metric curves, one line per group
     plots/bars.png             per-group bars of every metric column
@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 
 
 def jsonable(value: Any) -> Any:
-    from nsim.metrics.tables import NotAvailable
+    from nsim.metrics.results_table import NotAvailable
 
     if isinstance(value, NotAvailable):
         return {"not_available": value.reason}

@@ -13,7 +13,7 @@ copied, elsewhere. Bad input raises ``nsim.errors.InputError`` (images: floating
 ``LpipsUnavailable``. ``slam`` imports pycolmap only when SLAM runs.
 """
 
-from nsim.metrics.depth import (
+from nsim.metrics.depth_accuracy import (
     DepthConfig,
     DepthErrors,
     DepthMetrics,
@@ -41,7 +41,7 @@ from nsim.metrics.detection import (
     read_coco_detections,
 )
 from nsim.metrics.image import psnr, psnr_from_mse, ssim
-from nsim.metrics.lidar import ChamferResult, LidarRangeMetrics, chamfer_distance, lidar_range_metrics
+from nsim.metrics.lidar_realism import ChamferResult, LidarRangeMetrics, chamfer_distance, lidar_range_metrics
 from nsim.metrics.lpips import LpipsUnavailable, load_lpips, lpips_distance, lpips_or_na, unavailable_reason
 from nsim.metrics.paper_tables import (
     TABLE_BUILDERS,
@@ -58,8 +58,8 @@ from nsim.metrics.paper_tables import (
     spot_depth_table,
     spot_rgb_table,
 )
+from nsim.metrics.results_table import Column, NotAvailable, Table, to_markdown, to_text
 from nsim.metrics.slam import SlamComparison, SlamRun, compare_slam, evaluate_slam, run_colmap_slam
-from nsim.metrics.tables import Column, NotAvailable, Table, to_markdown, to_text
 from nsim.metrics.trajectory import AteResult, RpeResult, align_trajectories, ate, rpe, rpe_per_delta
 
 __all__ = [

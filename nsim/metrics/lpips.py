@@ -49,7 +49,7 @@ from torch.nn import functional as F
 from nsim.errors import InputError, NsimError
 from nsim.io import atomic_path
 from nsim.metrics.image import check_image_pair, check_mask
-from nsim.metrics.tables import NotAvailable
+from nsim.metrics.results_table import NotAvailable
 
 NETS = ("alex", "vgg")
 ENV_WEIGHTS_DIR = "NSIM_LPIPS_DIR"

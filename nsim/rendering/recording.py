@@ -9,7 +9,7 @@ each with its ``sensor_to_body (4, 4)`` and its frames' header stamps (int64 ns)
 Clocks (the convention of ``nsim.sfm.register``): ``clock_offset_s`` is the cameras' clock minus
 the odometry's, so a frame stamped ``s`` on the cameras' clock was captured at odometry time
 ``s - clock_offset_s``. Which streams run on the cameras' clock is the caller's choice (by kind):
-in nsim's robot log (``nsim.synth.robot_log``) only the colour frames do; depth and LiDAR are
+in nsim's robot log (``nsim.synth.faulty_robot_log``) only the colour frames do; depth and LiDAR are
 stamped on the odometry's clock. Odometry times stay int64 nanoseconds; poses are interpolated
 (``nsim.crowd.scenario.interpolate_poses``: positions linearly, rotations slerped) in seconds
 from the trajectory's first stamp, so the epoch's magnitude costs no precision. A frame whose

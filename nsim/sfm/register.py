@@ -9,7 +9,7 @@ scene's world. This module finds what ties the two together:
   similarity, for odometry whose scale is not trusted);
 * ``clock_offset_s``: the cameras' clock minus the odometry's, so that a frame stamped ``s`` was
   captured at odometry time ``s - clock_offset_s`` (the convention of
-  ``nsim.synth.robot_log``); searched or given.
+  ``nsim.synth.faulty_robot_log``); searched or given.
 
 The model. A frame k from a camera mounted at ``sensor_to_body_k`` has, in the odometry frame,
 ``cam_to_odom_k = B(t_k - clock_offset_s) @ sensor_to_body_k`` (``B`` interpolated between

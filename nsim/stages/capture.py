@@ -47,8 +47,8 @@ from nsim.config import param, to_dict
 from nsim.context import RunContext
 from nsim.io.canonical import round_decimals
 from nsim.stages.runner import cached, rerun
+from nsim.synth.faulty_robot_log import RobotLogFaults
 from nsim.synth.phone import PhoneConfig
-from nsim.synth.robot_log import RobotLogFaults
 from nsim.synth.room import ROOM_PRESETS
 
 STAGE = "capture"
@@ -212,7 +212,7 @@ class RobotLogConfig:
 
 
 def robot_log(trajectory: str, rig_path: Path, out: Path, cfg: RobotLogConfig, ctx: RunContext) -> dict[str, Any]:
-    """Write the realistic robot log of a simulated run (``nsim.synth.robot_log.write_robot_log``).
+    """Write the realistic robot log of a simulated run (``nsim.synth.faulty_robot_log.write_robot_log``).
 
     trajectory: a trajectory artifact (``nsim simulate``) whose scenario's scene is a test room
     (``scene: {room, room_seed}``); the robot's true path is its ``robot.tum``. The bag (and its
@@ -224,7 +224,7 @@ def robot_log(trajectory: str, rig_path: Path, out: Path, cfg: RobotLogConfig, c
     from nsim.io.tum import read_tum
     from nsim.rendering.render_plan import adapt_rig
     from nsim.sensors.rig import Rig
-    from nsim.synth.robot_log import write_robot_log
+    from nsim.synth.faulty_robot_log import write_robot_log
     from nsim.synth.room import make_room
 
     store = ctx.store

@@ -143,8 +143,8 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
 
 
 def load_table(ctx: RunContext, evaluation: str):
-    """The ``nsim.metrics.tables.Table`` of an evaluation artifact."""
-    from nsim.metrics.tables import Table
+    """The ``nsim.metrics.results_table.Table`` of an evaluation artifact."""
+    from nsim.metrics.results_table import Table
 
     art = ctx.store.get(ctx.store.resolve(evaluation, kind="evaluation"))
     meta = json.loads(art.file("evaluation.json").read_text())

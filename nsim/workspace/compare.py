@@ -71,7 +71,7 @@ from nsim.io.npz import read_npz
 from nsim.io.ply import read_ply
 from nsim.io.tum import read_tum
 from nsim.metrics.image import psnr
-from nsim.metrics.lidar import chamfer_distance
+from nsim.metrics.lidar_realism import chamfer_distance
 from nsim.workspace.store import safe_relpath
 
 

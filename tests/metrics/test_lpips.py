@@ -20,7 +20,7 @@ from skimage import data, transform
 
 from nsim.errors import InputError
 from nsim.metrics import lpips as lp
-from nsim.metrics.tables import NotAvailable, to_text
+from nsim.metrics.results_table import NotAvailable, to_text
 from tests.metrics.lpips_reference import lpips_reference
 
 ALEX_SHAPES = {

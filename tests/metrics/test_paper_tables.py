@@ -9,7 +9,7 @@ import pytest
 
 from nsim.errors import InputError
 from nsim.io.images import read_image
-from nsim.metrics.depth import DepthConfig, depth_metrics
+from nsim.metrics.depth_accuracy import DepthConfig, depth_metrics
 from nsim.metrics.paper_tables import (
     TABLE_BUILDERS,
     DepthRecord,
@@ -27,7 +27,7 @@ from nsim.metrics.paper_tables import (
     spot_depth_table,
     spot_rgb_table,
 )
-from nsim.metrics.tables import NotAvailable
+from nsim.metrics.results_table import NotAvailable
 
 IMAGES = [
     {"group": "robot-lab", "frame": 0, "psnr_db": 23.0, "ssim": 0.78, "lpips": 0.26},

@@ -223,7 +223,7 @@ def drifted_log(seed: int, faults=None, noise_m: float = 0.01, noise_deg: float 
     odom_to_world (4, 4), clock_offset_s).
     """
     from nsim.geometry.transforms import interpolate_poses
-    from nsim.synth.robot_log import RobotLogFaults, odom_to_world, odometry_from_truth
+    from nsim.synth.faulty_robot_log import RobotLogFaults, odom_to_world, odometry_from_truth
 
     faults = RobotLogFaults() if faults is None else faults
     rng = np.random.default_rng(seed)
@@ -283,7 +283,7 @@ def test_drift_refinement_recovers_the_odom_frame_that_a_rigid_fit_cannot():
 
 
 def test_drift_refinement_of_exact_data_is_exact():
-    from nsim.synth.robot_log import RobotLogFaults
+    from nsim.synth.faulty_robot_log import RobotLogFaults
 
     faults = dataclasses.replace(RobotLogFaults.none(), odom_frame_yaw_deg=35.0, odom_frame_xyz_m=(1.2, -0.6, 0.5))
     c2w, stamps, s2b, body, traj, _, truth, odom_to_world, _ = drifted_log(2, faults, 0.0, 0.0, 0.0)

@@ -1,4 +1,4 @@
-"""``nsim import-log`` on a robot log nsim writes (nsim.synth.robot_log): streams, stamps, intrinsics,
+"""``nsim import-log`` on a robot log nsim writes (nsim.synth.faulty_robot_log): streams, stamps, intrinsics,
 extrinsics and the trajectory against the log's ground truth; bad input exits 2 with nothing published."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from nsim.io.tum import read_tum
 from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import CameraSensor, load_rig, static_transforms
 from nsim.stages.capture import RobotLogConfig
-from nsim.synth.robot_log import RobotLogFaults, write_robot_log
+from nsim.synth.faulty_robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store
 

@@ -20,7 +20,7 @@ from nsim.io.tum import read_tum
 from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import load_rig
 from nsim.stages.capture import RobotLogConfig
-from nsim.synth.robot_log import RobotLogFaults, write_robot_log
+from nsim.synth.faulty_robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store
 from tests.io.test_robot_folder import export_folder

@@ -1,4 +1,4 @@
-"""`nsim render --recording` at tiny size: a robot log of the test room (nsim.synth.robot_log: two of
+"""`nsim render --recording` at tiny size: a robot log of the test room (nsim.synth.faulty_robot_log: two of
 Spot's fisheye cameras with depth, one of them grey, and its LiDAR; a 30 ms camera clock offset and
 the odometry frame 30 deg and 1.1 m off the room's), imported, registered with its truth (a
 ``registration`` artifact published here, as register-log would write it: register-log's SfM is
@@ -31,7 +31,7 @@ from nsim.metrics.image import psnr
 from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import load_rig
 from nsim.stages.capture import RobotLogConfig
-from nsim.synth.robot_log import RobotLogFaults, write_robot_log
+from nsim.synth.faulty_robot_log import RobotLogFaults, write_robot_log
 from nsim.synth.room import make_room
 from nsim.workspace.store import Store
 from tests.stages.micro import CAPTURE

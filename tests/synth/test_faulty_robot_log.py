@@ -18,8 +18,7 @@ from nsim.io.rosbag import stamp_ns
 from nsim.rendering.render_plan import adapt_rig
 from nsim.sensors.rig import Rig, _linear_to_srgb, _srgb_to_linear, load_rig
 from nsim.stages.capture import RobotLogConfig
-from nsim.synth.oracle import RoomOracle
-from nsim.synth.robot_log import (
+from nsim.synth.faulty_robot_log import (
     CAMERA_TAG,
     RobotLogFaults,
     camera_faults,
@@ -35,6 +34,7 @@ from nsim.synth.robot_log import (
     truth_path,
     write_robot_log,
 )
+from nsim.synth.oracle import RoomOracle
 from nsim.synth.room import make_room
 
 NONE = RobotLogFaults.none()
@@ -429,7 +429,7 @@ def test_bad_destination_fails_before_rendering(tmp_path, room, rig, monkeypatch
 
 def test_a_gray_camera_writes_a_one_component_jpeg():
     from nsim.io.rosbag import jpeg_components
-    from nsim.synth.robot_log import jpeg_bytes, jpeg_round_trip
+    from nsim.synth.faulty_robot_log import jpeg_bytes, jpeg_round_trip
 
     gray = (np.arange(48 * 64) % 251).astype(np.uint8).reshape(48, 64)
     assert jpeg_components(jpeg_bytes(gray, 90)) == 1
@@ -442,7 +442,7 @@ def test_a_gray_camera_writes_a_one_component_jpeg():
 def test_depth_noise_alone_stays_below_the_agreement_floor(room, rig):
     """paper.AGREEMENT_TOLERANCE's depth floor is the AbsRel the log's default depth noise adds by itself: a perfect
     render (the oracle's exact depth) scored against the noisy recording, over Spot's depth views of the walk loop."""
-    from nsim.metrics.depth import abs_rel
+    from nsim.metrics.depth_accuracy import abs_rel
     from tests.test_paper_recording import load_paper
 
     paper = load_paper()

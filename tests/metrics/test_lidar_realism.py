@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from nsim.errors import InputError
-from nsim.metrics.lidar import chamfer_distance, lidar_range_metrics
+from nsim.metrics.lidar_realism import chamfer_distance, lidar_range_metrics
 
 
 def test_range_errors_and_agreement():

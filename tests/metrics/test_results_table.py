@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from nsim.metrics.tables import NotAvailable, format_cell, to_markdown, to_text
+from nsim.metrics.results_table import NotAvailable, format_cell, to_markdown, to_text
 
 ROWS = [
     {"method": "ours", "PSNR": 31.23456, "LPIPS": NotAvailable("no LPIPS weights; run fetch"), "frames": 12},

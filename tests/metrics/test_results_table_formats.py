@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from nsim.metrics.tables import Column, NotAvailable, Table, latex_escape
+from nsim.metrics.results_table import Column, NotAvailable, Table, latex_escape
 
 COLUMNS = (Column("camera"), Column("PSNR", "higher", 2), Column("AbsRel", "lower", 3), Column("frames"))
 

@@ -87,7 +87,7 @@ class DepthMetrics(DepthErrors):
     scale: float
 
     def row(self) -> dict[str, float | int | str]:
-        """Table columns as the literature names them (``nsim.metrics.tables``)."""
+        """Table columns as the literature names them (``nsim.metrics.results_table``)."""
         return {
             "AbsRel": self.abs_rel,
             "SqRel": self.sq_rel,
