@@ -315,7 +315,7 @@ def tag_cmd(click_ctx: click.Context, spec: str, name: str, delete: bool):
 
 
 # ------------------------------------------------------------------------------- stages
-# Each stage's command lives in nsim/commands/<stage>.py (a thin shell over nsim.stages.<stage>).
+# Each stage's command lives in nsim/commands/<stage>_command.py (a thin shell over nsim.stages.<stage>).
 register_commands(cli)
 
 
