@@ -43,16 +43,8 @@ from scipy.sparse import csr_matrix
 from scipy.spatial.transform import Rotation
 
 from nsim.geometry.transforms import umeyama
+from nsim.human import skeleton as skel
 from nsim.human.landmarks import LANDMARK_NAMES
-from nsim.human.skeleton import (
-    JOINT_NAMES,
-    REFERENCE_HEIGHT_M,
-    Skeleton,
-    forward_kinematics,
-    local_rotations_from_global,
-    nsim_skeleton,
-    quats_from_matrices,
-)
 
 log = logging.getLogger(__name__)
 
@@ -106,11 +98,11 @@ _SIDES = (("left", 1.0), ("right", -1.0))
 
 def _limits() -> np.ndarray:
     """``(J, 3, 2)`` lower/upper bounds of each joint's local rotation vector components (rad)."""
-    lim = np.zeros((len(JOINT_NAMES), 3, 2))
+    lim = np.zeros((len(skel.JOINT_NAMES), 3, 2))
     lim[:, :, 0], lim[:, :, 1] = -np.inf, np.inf  # the root: free
 
     def put(name: str, x: tuple[float, float], y: tuple[float, float], z: tuple[float, float]) -> None:
-        lim[JOINT_NAMES.index(name)] = np.array([x, y, z]) * _DEG
+        lim[skel.JOINT_NAMES.index(name)] = np.array([x, y, z]) * _DEG
 
     for name in ("spine1", "spine2", "spine3"):
         put(name, (-30, 30), (-35, 35), (-30, 30))
@@ -150,7 +142,7 @@ class BodyModel:
     attach_offset_m: (L, 3) offset of each landmark in its joint's frame.
     """
 
-    skeleton: Skeleton
+    skeleton: skel.Skeleton
     attach_joint: np.ndarray
     attach_offset_m: np.ndarray
 
@@ -166,7 +158,7 @@ class BodyModel:
     @property
     def height_m(self) -> float:
         """Body height, floor to top of head (the rest extent plus the soles, as ``nsim_skeleton``)."""
-        return self.skeleton.height_m() * REFERENCE_HEIGHT_M / nsim_skeleton(REFERENCE_HEIGHT_M).height_m()
+        return self.skeleton.height_m() * skel.REFERENCE_HEIGHT_M / skel.nsim_skeleton(skel.REFERENCE_HEIGHT_M).height_m()
 
 
 def _idx(name: str) -> int:
@@ -174,15 +166,15 @@ def _idx(name: str) -> int:
 
 
 def _reference_attachments() -> tuple[np.ndarray, np.ndarray]:
-    joints = np.array([JOINT_NAMES.index(LANDMARK_ATTACHMENTS[n][0]) for n in LANDMARK_NAMES], dtype=np.int64)
+    joints = np.array([skel.JOINT_NAMES.index(LANDMARK_ATTACHMENTS[n][0]) for n in LANDMARK_NAMES], dtype=np.int64)
     offsets = np.array([LANDMARK_ATTACHMENTS[n][1] for n in LANDMARK_NAMES], dtype=np.float64)
     return joints, offsets
 
 
-def reference_body(height_m: float = REFERENCE_HEIGHT_M) -> BodyModel:
+def reference_body(height_m: float = skel.REFERENCE_HEIGHT_M) -> BodyModel:
     """The nsim body of ``height_m`` (``nsim_skeleton``) with the landmarks scaled alike."""
     joints, offsets = _reference_attachments()
-    return BodyModel(nsim_skeleton(height_m), joints, offsets * (float(height_m) / REFERENCE_HEIGHT_M))
+    return BodyModel(skel.nsim_skeleton(height_m), joints, offsets * (float(height_m) / skel.REFERENCE_HEIGHT_M))
 
 
 # ---------------------------------------------------------------------------------------------- bone lengths
@@ -241,7 +233,7 @@ def _point_weight(weights: np.ndarray, p: _Point) -> np.ndarray:
 
 def scaled_body(factors: dict[str, float]) -> BodyModel:
     """The reference body (1.75 m) with each group's items multiplied by its factor (1 where absent)."""
-    sk = nsim_skeleton(REFERENCE_HEIGHT_M)
+    sk = skel.nsim_skeleton(skel.REFERENCE_HEIGHT_M)
     off, end = sk.offsets_m.copy(), sk.end_sites_m.copy()
     joints, att = _reference_attachments()
     for name, _, items in _groups():
@@ -254,7 +246,7 @@ def scaled_body(factors: dict[str, float]) -> BodyModel:
                 end[sk.index(item), c] *= k
             else:
                 att[_idx(item), c] *= k
-    return BodyModel(Skeleton(sk.joint_names, sk.parents, off, end), joints, att)
+    return BodyModel(skel.Skeleton(sk.joint_names, sk.parents, off, end), joints, att)
 
 
 def estimate_body(landmarks_m: np.ndarray, weights: np.ndarray | None = None, min_weight: float = 0.5,
@@ -432,7 +424,7 @@ def _initial_rotations(body: BodyModel, landmarks: np.ndarray, weights: np.ndarr
             turn = rotation_between(G[f, p] @ a, b)
             new = turn @ G[f, p]
             G[f, below[j]] = new  # the joint and everything below it turn alike
-    return local_rotations_from_global(sk, G)
+    return skel.local_rotations_from_global(sk, G)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -587,7 +579,7 @@ class IKProblem:
         if self._cache is None or self._cache[0] != key:
             X = x.reshape(self.F, self.P)
             rv = X[:, 3:].reshape(self.F, self.J, 3)
-            T = forward_kinematics(self.body.skeleton, _rotvec_to_matrix(rv), X[:, :3])
+            T = skel.forward_kinematics(self.body.skeleton, _rotvec_to_matrix(rv), X[:, :3])
             self._cache = (key, (rv, T))
         return self._cache[1]
 
@@ -817,7 +809,7 @@ def fit_poses(landmarks_m: np.ndarray, body: BodyModel, weights: np.ndarray | No
     iterations = it_alone + it_joint
     x = x_opt.reshape(F, P)
     T = problem.transforms(x_opt)
-    q = quats_from_matrices(_rotvec_to_matrix(x[:, 3:].reshape(F, J, 3)))
+    q = skel.quats_from_matrices(_rotvec_to_matrix(x[:, 3:].reshape(F, J, 3)))
     err = np.linalg.norm(body.landmarks(T) - lm, axis=-1)
     err = np.where(seen, err, np.nan)
     log.debug("fit_poses: %d frames, %d iterations, landmark error median %.4f m", F, iterations,
@@ -848,7 +840,7 @@ def mpjpe_m(pred_m: np.ndarray, true_m: np.ndarray, procrustes: bool = True) -> 
     return np.linalg.norm(pred - true, axis=-1).mean(axis=-1)
 
 
-def bone_lengths_m(skeleton: Skeleton, joint_positions_m: np.ndarray) -> np.ndarray:
+def bone_lengths_m(skeleton: skel.Skeleton, joint_positions_m: np.ndarray) -> np.ndarray:
     """Length of every bone (joint to its parent) per frame: ``(..., J - 1)`` from ``(..., J, 3)``."""
     p = np.asarray(joint_positions_m, dtype=np.float64)
     return np.linalg.norm(p[..., 1:, :] - p[..., skeleton.parents[1:], :], axis=-1)

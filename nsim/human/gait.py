@@ -37,17 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from nsim.human import skeleton
 from nsim.human.gait_phase import stride_length_m
 from nsim.human.motion import LocomotionLoop, MotionClip
-from nsim.human.skeleton import (
-    REFERENCE_HEIGHT_M,
-    Skeleton,
-    forward_kinematics,
-    local_rotations_from_global,
-    nsim_skeleton,
-    quats_from_matrices,
-    rot_z,
-)
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +57,7 @@ def duty_factor(speed_mps: float) -> float:
     return float(np.clip(0.66 - 0.035 * speed_mps, 0.55, 0.65))
 
 
-def cadence_steps_per_min(speed_mps: float, height_m: float = REFERENCE_HEIGHT_M) -> float:
+def cadence_steps_per_min(speed_mps: float, height_m: float = skeleton.REFERENCE_HEIGHT_M) -> float:
     """Steps per minute at ``speed_mps``: ``120 * v / stride_length_m(v, height)``."""
     return float(120.0 * speed_mps / stride_length_m(speed_mps, height_m))
 
@@ -112,14 +104,14 @@ def _bone_frame(bone_dir: np.ndarray, hinge_axis: np.ndarray) -> np.ndarray:
 class _Foot:
     """Planted-foot geometry of one side in the walking frame (x forward, y left, z up)."""
 
-    def __init__(self, sk: Skeleton, side: str, toe_out_rad: float) -> None:
+    def __init__(self, sk: skeleton.Skeleton, side: str, toe_out_rad: float) -> None:
         rest = sk.rest_positions_m()
         self.ankle_rest = rest[sk.index(f"{side}_ankle")]
         ball = rest[sk.index(f"{side}_foot")]
         s = sk.height_m() / 1.72
         self.ball_rel0 = ball - self.ankle_rest  # (3,)
         self.heel_rel0 = np.array([-0.06 * s, 0.0, ball[2] - self.ankle_rest[2]])  # heel on the sole
-        self.yaw = rot_z(toe_out_rad)
+        self.yaw = skeleton.rot_z(toe_out_rad)
 
     def rel(self, rel0: np.ndarray, pitch: np.ndarray) -> np.ndarray:
         return np.einsum("ij,njk,k->ni", self.yaw, _ry(pitch), rel0)
@@ -198,7 +190,7 @@ def _pelvis_drop(pelvis: np.ndarray, R_pelvis: np.ndarray, legs: list[tuple[np.n
     return np.r_[smooth, smooth[:1]]
 
 
-def walk_cycle(speed_mps: float = 1.3, height_m: float = REFERENCE_HEIGHT_M, fps: float = DEFAULT_FPS) -> MotionClip:
+def walk_cycle(speed_mps: float = 1.3, height_m: float = skeleton.REFERENCE_HEIGHT_M, fps: float = DEFAULT_FPS) -> MotionClip:
     """One walking cycle (stride) of ``nsim_skeleton(height_m)`` at ``speed_mps`` (0.3 to 2.5 m/s).
 
     Walks along +x from the origin; ``N + 1`` frames with ``N = round(period * fps)`` (the clip's
@@ -206,8 +198,8 @@ def walk_cycle(speed_mps: float = 1.3, height_m: float = REFERENCE_HEIGHT_M, fps
     """
     if not (math.isfinite(speed_mps) and 0.3 <= speed_mps <= 2.5):
         raise ValueError(f"walk_cycle: speed_mps must be in [0.3, 2.5], got {speed_mps!r}")
-    sk = nsim_skeleton(height_m)
-    s = height_m / REFERENCE_HEIGHT_M
+    sk = skeleton.nsim_skeleton(height_m)
+    s = height_m / skeleton.REFERENCE_HEIGHT_M
     v = float(speed_mps)
     stride = float(stride_length_m(v, height_m))
     period = stride / v
@@ -222,7 +214,7 @@ def walk_cycle(speed_mps: float = 1.3, height_m: float = REFERENCE_HEIGHT_M, fps
     yaw = -deg(3.0 + 2.0 * v) * np.cos(2 * np.pi * phase)  # left hip forward at left heel strike
     roll = deg(2.5 + 1.0 * v) * np.cos(2 * np.pi * (phase - mid))  # swing side drops
     lean = deg(2.0 + 2.0 * v)
-    R_pelvis = rot_z(yaw) @ _ry(np.full(F, lean)) @ _rx(roll)
+    R_pelvis = skeleton.rot_z(yaw) @ _ry(np.full(F, lean)) @ _rx(roll)
     sway = 0.025 * s * np.cos(2 * np.pi * (phase - mid)) / (0.5 + 0.5 * v)
     pelvis = np.stack([v * period * phase, sway, np.full(F, sk.offsets_m[0, 2])], axis=-1)
 
@@ -248,7 +240,7 @@ def walk_cycle(speed_mps: float = 1.3, height_m: float = REFERENCE_HEIGHT_M, fps
     # global rotations of every joint
     G = np.broadcast_to(np.eye(3), (F, sk.num_joints, 3, 3)).copy()
     G[:, 0] = R_pelvis
-    spine_yaw = rot_z(-0.45 * yaw) @ _rx(-roll / 3.0)
+    spine_yaw = skeleton.rot_z(-0.45 * yaw) @ _rx(-roll / 3.0)
     G[:, idx["spine1"]] = R_pelvis @ spine_yaw
     G[:, idx["spine2"]] = G[:, idx["spine1"]] @ spine_yaw
     G[:, idx["spine3"]] = G[:, idx["spine2"]] @ spine_yaw @ _ry(np.full(F, -0.5 * lean))
@@ -259,7 +251,7 @@ def walk_cycle(speed_mps: float = 1.3, height_m: float = REFERENCE_HEIGHT_M, fps
     G[:, idx["neck"]] = head
     G[:, idx["head"]] = head
     forward = R_pelvis[:, :, 0]
-    pre = forward_kinematics(sk, local_rotations_from_global(sk, G), pelvis)
+    pre = skeleton.forward_kinematics(sk, skeleton.local_rotations_from_global(sk, G), pelvis)
     for side in ("left", "right"):
         hip = pre[:, idx[f"{side}_hip"], :3, 3]
         ankle, pitch = tracks[side]
@@ -274,32 +266,32 @@ def walk_cycle(speed_mps: float = 1.3, height_m: float = REFERENCE_HEIGHT_M, fps
     abduct = deg(82.0)
     for side, sign in (("left", 1.0), ("right", -1.0)):
         swing = -sign * swing_amp * np.cos(2 * np.pi * phase)  # left arm forward at right heel strike
-        upper = rot_z(-0.35 * yaw) @ _ry(-swing) @ _rx(-sign * np.full(F, abduct))
+        upper = skeleton.rot_z(-0.35 * yaw) @ _ry(-swing) @ _rx(-sign * np.full(F, abduct))
         G[:, idx[f"{side}_shoulder"]] = upper
         elbow = deg(12.0 + 8.0 * v) + 0.5 * np.maximum(swing, 0.0)
-        G[:, idx[f"{side}_elbow"]] = upper @ rot_z(-sign * elbow)
+        G[:, idx[f"{side}_elbow"]] = upper @ skeleton.rot_z(-sign * elbow)
         G[:, idx[f"{side}_wrist"]] = G[:, idx[f"{side}_elbow"]]
-        G[:, idx[f"{side}_hand"]] = G[:, idx[f"{side}_elbow"]] @ rot_z(-sign * np.full(F, deg(10.0)))
-    L = local_rotations_from_global(sk, G)
-    return MotionClip(sk, n / period, pelvis, quats_from_matrices(L), name=f"walk {v:g} m/s", loop=True)
+        G[:, idx[f"{side}_hand"]] = G[:, idx[f"{side}_elbow"]] @ skeleton.rot_z(-sign * np.full(F, deg(10.0)))
+    L = skeleton.local_rotations_from_global(sk, G)
+    return MotionClip(sk, n / period, pelvis, skeleton.quats_from_matrices(L), name=f"walk {v:g} m/s", loop=True)
 
 
-def idle_cycle(height_m: float = REFERENCE_HEIGHT_M, period_s: float = 4.0, fps: float = DEFAULT_FPS) -> MotionClip:
+def idle_cycle(height_m: float = skeleton.REFERENCE_HEIGHT_M, period_s: float = 4.0, fps: float = DEFAULT_FPS) -> MotionClip:
     """Standing idle of ``nsim_skeleton(height_m)``: breathing, a slow weight shift and head motion.
 
     Feet stay planted (legs solved by IK); ``N + 1`` frames over ``period_s``, the last closing the loop.
     """
     if not (math.isfinite(period_s) and period_s > 0.5):
         raise ValueError(f"idle_cycle: period_s must be > 0.5, got {period_s!r}")
-    sk = nsim_skeleton(height_m)
-    s = height_m / REFERENCE_HEIGHT_M
+    sk = skeleton.nsim_skeleton(height_m)
+    s = height_m / skeleton.REFERENCE_HEIGHT_M
     n = max(8, int(round(period_s * fps)))
     phase = np.arange(n + 1) / n
     F = phase.shape[0]
     w = 2 * np.pi * phase
     deg = np.radians
     idx = {n_: sk.index(n_) for n_ in sk.joint_names}
-    R_pelvis = rot_z(deg(2.0) * np.sin(w)) @ _rx(deg(1.5) * np.sin(w + 0.7))
+    R_pelvis = skeleton.rot_z(deg(2.0) * np.sin(w)) @ _rx(deg(1.5) * np.sin(w + 0.7))
     pelvis = np.stack([0.01 * s * np.sin(w + 1.3), 0.02 * s * np.sin(w), np.full(F, sk.offsets_m[0, 2])], -1)
     l1 = float(np.linalg.norm(sk.offsets_m[idx["left_knee"]]))
     l2 = float(np.linalg.norm(sk.offsets_m[idx["left_ankle"]]))
@@ -320,10 +312,10 @@ def idle_cycle(height_m: float = REFERENCE_HEIGHT_M, period_s: float = 4.0, fps:
     G[:, idx["spine3"]] = G[:, idx["spine2"]] @ _ry(-0.5 * breath)
     G[:, idx["left_collar"]] = G[:, idx["spine3"]]
     G[:, idx["right_collar"]] = G[:, idx["spine3"]]
-    head = rot_z(deg(8.0) * np.sin(w + 2.0)) @ _ry(deg(3.0) + deg(2.0) * np.sin(2 * w))
+    head = skeleton.rot_z(deg(8.0) * np.sin(w + 2.0)) @ _ry(deg(3.0) + deg(2.0) * np.sin(2 * w))
     G[:, idx["neck"]] = head
     G[:, idx["head"]] = head
-    pre = forward_kinematics(sk, local_rotations_from_global(sk, G), pelvis)
+    pre = skeleton.forward_kinematics(sk, skeleton.local_rotations_from_global(sk, G), pelvis)
     for side in ("left", "right"):
         thigh, shin = _leg_ik(pre[:, idx[f"{side}_hip"], :3, 3], ankles[side], np.tile([1.0, 0.0, 0.0], (F, 1)), l1, l2)
         G[:, idx[f"{side}_hip"]] = thigh
@@ -332,15 +324,15 @@ def idle_cycle(height_m: float = REFERENCE_HEIGHT_M, period_s: float = 4.0, fps:
         upper = G[:, idx["spine3"]] @ _ry(np.full(F, deg(-4.0)) + deg(1.5) * np.sin(w + sign)) @ _rx(
             -sign * np.full(F, deg(84.0)))
         G[:, idx[f"{side}_shoulder"]] = upper
-        G[:, idx[f"{side}_elbow"]] = upper @ rot_z(-sign * np.full(F, deg(14.0)))
+        G[:, idx[f"{side}_elbow"]] = upper @ skeleton.rot_z(-sign * np.full(F, deg(14.0)))
         G[:, idx[f"{side}_wrist"]] = G[:, idx[f"{side}_elbow"]]
-        G[:, idx[f"{side}_hand"]] = G[:, idx[f"{side}_elbow"]] @ rot_z(-sign * np.full(F, deg(12.0)))
-    L = local_rotations_from_global(sk, G)
-    return MotionClip(sk, n / period_s, pelvis, quats_from_matrices(L), name="idle", loop=True)
+        G[:, idx[f"{side}_hand"]] = G[:, idx[f"{side}_elbow"]] @ skeleton.rot_z(-sign * np.full(F, deg(12.0)))
+    L = skeleton.local_rotations_from_global(sk, G)
+    return MotionClip(sk, n / period_s, pelvis, skeleton.quats_from_matrices(L), name="idle", loop=True)
 
 
 def turn(speed_mps: float = 1.0, turn_rate_deg_s: float = 45.0, duration_s: float = 4.0,
-         height_m: float = REFERENCE_HEIGHT_M, fps: float = DEFAULT_FPS) -> MotionClip:
+         height_m: float = skeleton.REFERENCE_HEIGHT_M, fps: float = DEFAULT_FPS) -> MotionClip:
     """Walk at ``speed_mps`` on a circular arc turning at ``turn_rate_deg_s`` (positive: left) for ``duration_s``."""
     if not (math.isfinite(turn_rate_deg_s) and turn_rate_deg_s != 0.0):
         raise ValueError(f"turn: turn_rate_deg_s must be nonzero, got {turn_rate_deg_s!r}")
@@ -354,7 +346,7 @@ def turn(speed_mps: float = 1.0, turn_rate_deg_s: float = 45.0, duration_s: floa
     return clip.with_name(f"turn {turn_rate_deg_s:g} deg/s at {speed_mps:g} m/s")
 
 
-def default_clip(name: str, height_m: float = REFERENCE_HEIGHT_M) -> MotionClip:
+def default_clip(name: str, height_m: float = skeleton.REFERENCE_HEIGHT_M) -> MotionClip:
     """One of ``DEFAULT_CLIPS`` generated for a body ``height_m`` tall."""
     if name not in DEFAULT_CLIPS:
         raise ValueError(f"unknown default clip {name!r}; valid: {', '.join(DEFAULT_CLIPS)}")
