@@ -32,7 +32,7 @@ Rendering (``render_baked``: rays in, a ``RenderOutput`` out)
     ray's (times the baked accumulation) and its depth replaces the baked one where the window holds most of the
     surface. Otherwise, with ``field_color_samples = k > 0``,
     the ``k`` heaviest samples of each ray take the field's colour at their midpoints and the rest the
-    interpolated features' (configs/bake/default.yaml has the measurements of both). Rays rendered without
+    interpolated features' (nsim/configs/bake/default.yaml has the measurements of both). Rays rendered without
     colour (``colour=False``: a LiDAR) decode none: their depth is the window's (the field's density alone)
     with ``field_samples``, else the baked density's.
 

@@ -8,27 +8,65 @@ and optionally ``motion (P,)`` and ``appearance (P,)``) and the human checkpoint
 1. ``joint_transforms`` / ``joint_transforms_at``: each person still in the run posed by its gait
    loop (``nsim.human.motion.LocomotionLoop``) and skeleton, at a tick or between ticks;
 2. ``visible``: the paper's Algorithm 1, corrected (``nsim.rendering.culling``): the people whose
-   posed box the sensor's rays can see, with the rays to cast their samples on;
-3. ``composite``: the scene's samples and every visible person's merged in depth order, one volume
+   posed box the sensor's rays can see, with the rays to cast their samples on (``PersonView``);
+3. ``composite`` (settings: ``CompositeConfig``): the scene's samples and every visible person's merged in
+   depth order, one volume
    rendering over both (``nsim.volume.compositing``, the human trainer's compositing too); the
    instance id of a ray is the person holding more than half its weight.
 
 Used by ``nsim.rendering.shard`` (``nsim render``) and, for the ground truth of the same poses,
-``nsim.evaluation.oracle``.
+``nsim.evaluation.oracle_truth``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from nsim.errors import InputError, NsimError
 
+if TYPE_CHECKING:
+    from torch import Tensor
+
+    from nsim.human.nerf import HumanModel
+    from nsim.rendering.renderer import MarchConfig
+
 log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PersonView:
+    """One person a sensor's rays can see (``HumanSet.visible``), as ``HumanSet.composite`` draws it."""
+
+    k: int
+    """The person's index in the trajectory (its column in ``position_m``); its instance id is ``k + 1``."""
+    joint_transforms: np.ndarray
+    """``(J, 4, 4)`` joint-to-world transforms of the posed skeleton (``HumanSet.joint_transforms``)."""
+    model: HumanModel
+    """The human checkpoint that draws the person (``HumanSet.model_index``)."""
+    ray_mask: Tensor
+    """``(N,)`` bool: the rays the person's samples are cast on (all N rays of the sensor)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CompositeConfig:
+    """What ``HumanSet.composite`` needs of the render's settings (``nsim.rendering.render_plan.RenderConfig``
+    holds these fields under the same names)."""
+
+    method: str
+    """How the scene is rendered along the rays: ``proposal``, ``march`` (or ``baked``, given ``scene_out``)."""
+    march: MarchConfig
+    """``method: march``: its step and early termination."""
+    chunk_rays: int
+    """Rays rendered per batch."""
+    culling: bool
+    """A person's samples only where the ray meets its posed box (the same images, faster)."""
 
 
 def default_checkpoint(k: int, n_models: int) -> int:
@@ -84,7 +122,8 @@ class HumanSet:
         self._loops: dict[tuple[str, float], Any] = {}
 
     @classmethod
-    def load(cls, human_dirs: list[str], trajectory_file: str | None, device, person_model=None) -> HumanSet:
+    def load(cls, human_dirs: Sequence[str | Path], trajectory_file: str | Path | None, device,
+             person_model: Sequence[int] | None = None) -> HumanSet:
         from nsim.human.nerf import load_human_model
 
         if trajectory_file is None:
@@ -143,10 +182,10 @@ class HumanSet:
             out.append((k, T))
         return out
 
-    def visible(self, posed: list[tuple[int, np.ndarray]], origins, dirs, camera, cam_to_world, culling: bool,
-                t_min: float = 0.0, t_max: float = math.inf, valid=None) -> list[dict]:
-        """Of the ``posed`` people (``joint_transforms``), those whose posed box the rays can see, with the
-        ray mask to cast their samples on.
+    def visible(self, posed: list[tuple[int, np.ndarray]], origins: Tensor, dirs: Tensor, camera, cam_to_world,
+                culling: bool, t_min: float = 0.0, t_max: float = math.inf, valid=None) -> list[PersonView]:
+        """Of the ``posed`` people (``joint_transforms``), those whose posed box the rays ``origins, dirs (N, 3)``
+        can see, with the ray mask to cast their samples on.
 
         With ``culling`` a person is dropped when the box's image rectangle misses a camera's frame
         (the cheap test, first), then when no ray meets the box within ``[t_min, t_max]`` m (the
@@ -183,17 +222,18 @@ class HumanSet:
                 mask &= inside
             if culling and not mask.any():
                 continue
-            people.append({"k": k, "T": T, "model": model, "mask": torch.as_tensor(mask if culling else np.ones_like(mask))})
+            people.append(PersonView(k=k, joint_transforms=T, model=model,
+                                     ray_mask=torch.as_tensor(mask if culling else np.ones_like(mask))))
         return people
 
-    def composite(self, scene_model, grid, rays, people: list[dict], cfg, scene_out=None):
+    def composite(self, scene_model, grid, rays, people: list[PersonView], cfg: CompositeConfig, scene_out=None):
         """Scene samples + every person's samples on its rays, merged in depth order; one volume
         rendering over both. Returns (RenderOutput, instance ids (N,) uint16).
 
-        cfg: the render config (``nsim.stages.render.Config``): its ``method``, ``march``,
-        ``chunk_rays`` (the scene's rendering) and ``culling`` (the people's box test). scene_out: the
-        scene already rendered along ``rays`` with its samples (e.g. from a baked scene,
-        ``nsim.rendering.baked.render_baked``); None renders ``scene_model`` here."""
+        rays: the sensor's N rays; people: ``visible``'s. cfg: ``method``, ``march``, ``chunk_rays`` (the
+        scene's rendering) and ``culling`` (the people's box test). scene_out: the scene already rendered
+        along ``rays`` with its samples (e.g. from a baked scene, ``nsim.rendering.baked.render_baked``);
+        None renders ``scene_model`` here."""
         import torch
 
         from nsim.rendering.renderer import render_rays
@@ -205,7 +245,7 @@ class HumanSet:
             scene_out = render_rays(scene_model, rays, cfg.method, grid, cfg.march, cfg.chunk_rays, return_samples=True)
         any_mask = torch.zeros(n, dtype=torch.bool)
         for p in people:
-            any_mask |= p["mask"]
+            any_mask |= p.ray_mask
         idx = torch.nonzero(any_mask, as_tuple=True)[0]
         out = scene_out
         instance = np.zeros(n, dtype=np.uint16)
@@ -214,10 +254,11 @@ class HumanSet:
             parts = [RaySamples(*(getattr(scene_out.samples, f)[idx] for f in ("t_starts", "t_ends", "sigma", "rgb")))]
             live = torch.zeros(len(idx), dtype=torch.bool)  # rays where some person has a sample of non-zero length
             for p in people:
-                m = p["mask"][idx]
+                m = p.ray_mask[idx]
                 with torch.no_grad():  # the model's parameters require grad; rendering needs none
-                    hs = p["model"].render_samples(sub.origins, sub.dirs, torch.as_tensor(p["T"], dtype=torch.float32),
-                                                   sub.near, sub.far, box_test=cfg.culling)
+                    hs = p.model.render_samples(sub.origins, sub.dirs,
+                                                torch.as_tensor(p.joint_transforms, dtype=torch.float32),
+                                                sub.near, sub.far, box_test=cfg.culling)
                 sig = torch.where(m[:, None], hs.sigma, 0.0)
                 live |= m & (hs.t_ends > hs.t_starts).any(-1)
                 parts.append(RaySamples(hs.t_starts, hs.t_ends, sig, hs.rgb))
@@ -233,7 +274,7 @@ class HumanSet:
             per[0] = 0.0  # the scene is no instance
             best = per.argmax(0)
             strong = per.max(0).values > 0.5
-            ids = torch.tensor([0] + [p["k"] + 1 for p in people])[best]
+            ids = torch.tensor([0] + [p.k + 1 for p in people])[best]
             instance[idx.numpy()] = torch.where(strong, ids, 0).numpy().astype(np.uint16)
             for f in ("rgb", "depth", "depth_median", "accumulation"):
                 getattr(out, f)[idx] = getattr(comp, f)

@@ -11,7 +11,7 @@ the odometry's, so a frame stamped ``s`` on the cameras' clock was captured at o
 ``s - clock_offset_s``. Which streams run on the cameras' clock is the caller's choice (by kind):
 in nsim's robot log (``nsim.synth.faulty_robot_log``) only the colour frames do; depth and LiDAR are
 stamped on the odometry's clock. Odometry times stay int64 nanoseconds; poses are interpolated
-(``nsim.crowd.scenario.interpolate_poses``: positions linearly, rotations slerped) in seconds
+(``nsim.geometry.transforms.interpolate_poses``: positions linearly, rotations slerped) in seconds
 from the trajectory's first stamp, so the epoch's magnitude costs no precision. A frame whose
 odometry time lies outside ``[traj_ns[0], traj_ns[-1]]`` has no pose: it is not extrapolated.
 

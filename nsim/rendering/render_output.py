@@ -1,13 +1,14 @@
 """The ``render`` artifact from its rendered shards: assembly, previews, and the ROS 2 bag export.
 
 ``assemble`` hard-links every shard's files (``nsim.rendering.shard``) into the artifact and writes
-the frame-level files: ``render.json`` (the mode's contract, documented in ``nsim.stages.render``),
+the frame-level files: ``render.json`` (the mode's contract, in the layout below),
 trajectory mode's ``rig.json``, ``robot.tum``, ``cameras/<sensor>.json`` and person boxes, recording
 mode's per-stream frames and person boxes, and ``preview/`` (``write_previews``: the contact sheet
 and the H.264 video, rows drawn by ``_frame_strip`` or, recording mode, ``_recording_strip``).
 ``export_rosbag`` writes a trajectory-mode artifact as a ROS 2 bag.
 
-``inputs`` and ``cfg`` are the stage's resolved ``nsim.stages.render.Inputs`` and its ``Config``.
+``sources`` are the render's input artifacts as folders and ``frames`` what was rendered
+(``nsim.rendering.render_job``); ``cfg`` is the render's ``nsim.rendering.render_plan.RenderConfig``.
 
 The render artifact (``nsim render``; its modes are described in :mod:`nsim.stages.render`).
 Layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses)::
@@ -52,29 +53,45 @@ Recording mode mirrors the recording's layout, file for file, for the frames ren
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.rendering.render_plan import people_clock, scene_is_metric
+from nsim.rendering.render_job import (
+    ArtifactDir,
+    Frame,
+    PoseFrame,
+    RecordedStream,
+    RecordingPlan,
+    RenderSources,
+    TickFrame,
+)
+from nsim.rendering.render_plan import RenderConfig, scene_is_metric
+
+if TYPE_CHECKING:
+    from nsim.sensors.rig import Rig
 
 
-def _world_units(ctx: RunContext, scene: str | None) -> str:
+def _world_units(scene: ArtifactDir) -> str:
     """What the world's lengths are: metres, unless the scene was trained on poses of arbitrary scale."""
-    if scene is not None and not scene_is_metric(ctx, scene):
+    if not scene_is_metric(scene.file("scene.json")):
         return "arbitrary units (the poses had no metric scale; see scene.json units_per_m), z up"
     return "metres, z up"
 
 
-def assemble(out_dir: Path, inputs, cfg, rig, frames: list[dict], shard_dirs: list[Path],
-             ctx: RunContext, streams: list[dict] | None = None, recording_dir: str | None = None) -> dict[str, Any]:
-    """Hard-link every shard's files into the artifact, then write the frame-level files."""
+def assemble(out_dir: Path, sources: RenderSources, cfg: RenderConfig, rig: Rig | None,
+             frames: Sequence[Frame], shard_dirs: list[Path],
+             recording: RecordingPlan | None = None) -> dict[str, Any]:
+    """Hard-link every shard's files into the artifact, then write the frame-level files: trajectory and
+    poses mode from ``frames`` (and trajectory mode's ``rig``), recording mode from ``recording`` (whose
+    ``frames`` these are)."""
     rows: list[dict] = []
     for sd in shard_dirs:
         for src in sorted(Path(sd).rglob("*")):
@@ -86,14 +103,14 @@ def assemble(out_dir: Path, inputs, cfg, rig, frames: list[dict], shard_dirs: li
                 except OSError:
                     shutil.copyfile(src, dst)
         rows += json.loads((Path(sd) / "frames.json").read_text())
-    if streams is not None:
-        return _assemble_recording(out_dir, inputs, cfg, frames, streams, rows, Path(recording_dir), ctx)
+    if recording is not None:
+        return _assemble_recording(out_dir, sources, cfg, recording, rows)
     meta: dict[str, Any] = {
-        "mode": "trajectory" if inputs.trajectory else "poses",
-        "scene": inputs.scene,
-        "frames": [{k: f[k] for k in ("index", "time_s", "name") if k in f} for f in frames],
+        "mode": "trajectory" if sources.trajectory is not None else "poses",
+        "scene": sources.scene.id,
+        "frames": [f.to_json() for f in frames],
         "conventions": {
-            "world": _world_units(ctx, inputs.scene),
+            "world": _world_units(sources.scene),
             "camera": "OpenCV axes (x right, y down, z forward)",
             "lidar": "x forward, y left, z up; rows = beams (ring 0 lowest), columns = azimuth",
             "body": "x forward, y left, z up",
@@ -102,27 +119,27 @@ def assemble(out_dir: Path, inputs, cfg, rig, frames: list[dict], shard_dirs: li
         },
         "per_frame": rows,
     }
-    summary: dict[str, Any] = {"mode": meta["mode"], "frames": len(frames), "humans": len(inputs.humans)}
+    summary: dict[str, Any] = {"mode": meta["mode"], "frames": len(frames), "humans": len(sources.humans)}
     if rig is not None:
         from nsim.io.transforms_json import Frame, TransformsData, write_transforms
         from nsim.io.tum import Trajectory, write_tum
         from nsim.sensors.rig import CameraSensor
 
         (out_dir / "rig.json").write_text(json.dumps(rig.to_dict(), indent=1, sort_keys=True, default=str) + "\n")
-        body = np.stack([np.asarray(f["body_to_world"]) for f in frames])
-        times = np.array([f["time_s"] for f in frames])
+        body = np.stack([f.body_to_world for f in frames])
+        times = np.array([f.time_s for f in frames])
         write_tum(out_dir / "robot.tum", Trajectory.from_poses(times, body))
         (out_dir / "cameras").mkdir()
         for s in rig.sensors:
             if isinstance(s, CameraSensor):
-                tf = [Frame(file_path=f"{s.name}/rgb/{f['index']:06d}.png", cam_to_world=s.world_pose(b), camera=s.camera,
-                            timestamp_s=f["time_s"]) for f, b in zip(frames, body, strict=True)]
+                tf = [Frame(file_path=f"{s.name}/rgb/{f.index:06d}.png", cam_to_world=s.world_pose(b), camera=s.camera,
+                            timestamp_s=f.time_s) for f, b in zip(frames, body, strict=True)]
                 write_transforms(out_dir / "cameras" / f"{s.name}.json", TransformsData(frames=tf))
         meta["sensors"] = [{"name": s.name, "type": s.type} for s in rig.sensors]
         summary["sensors"] = [s.name for s in rig.sensors]
         summary["rig"] = rig.name
-        summary["rig_file"] = str(inputs.rig)
-        if inputs.humans:
+        summary["rig_file"] = str(sources.rig_file)
+        if sources.humans:
             from nsim.io.coco import coco_from_mask_files, write_coco_json
 
             for s in rig.sensors:
@@ -135,26 +152,25 @@ def assemble(out_dir: Path, inputs, cfg, rig, frames: list[dict], shard_dirs: li
     return summary
 
 
-def _assemble_recording(out_dir: Path, inputs, cfg, frames: list[dict], streams: list[dict],
-                        rows: list[dict], recording_dir: Path, ctx: RunContext) -> dict[str, Any]:
+def _assemble_recording(out_dir: Path, sources: RenderSources, cfg: RenderConfig, recording: RecordingPlan,
+                        rows: list[dict]) -> dict[str, Any]:
     """Recording mode's render.json (the contract in the module docstring) and previews."""
-    recording = ctx.store.get(inputs.registration).manifest["inputs"]["recording"]
+    frames, streams = recording.frames, recording.streams
     per_stream = []
-    fields = ("index", "stamp_ns", "odom_time_ns", "sensor_to_world", "people_time_s")
     for st in streams:
-        mine = [f for f in frames if f["stream"] == st["key"]]
-        per_stream.append({"name": st["name"], "kind": st["kind"], "color": st["color"],
-                           "skipped_outside_trajectory": st["skipped_outside_trajectory"],
-                           **({"people_outside_run": st["people_outside_run"]} if inputs.humans else {}),
-                           "frames": [{k: f[k] for k in fields if k in f} for f in mine]})
+        mine = [f for f in frames if f.stream == st.key]
+        per_stream.append({"name": st.name, "kind": st.kind, "color": st.color,
+                           "skipped_outside_trajectory": st.skipped_outside_trajectory,
+                           **({"people_outside_run": st.people_outside_run} if sources.humans else {}),
+                           "frames": [f.to_json() for f in mine]})
     meta: dict[str, Any] = {
         "mode": "recording",
-        "recording": recording,
-        "registration": inputs.registration,
-        "scene": inputs.scene,
+        "recording": sources.recording.id,
+        "registration": sources.registration.id,
+        "scene": sources.scene.id,
         "streams": per_stream,
         "conventions": {
-            "world": _world_units(ctx, inputs.scene),
+            "world": _world_units(sources.scene),
             "time": "stamp_ns: the recorded header stamp; odom_time_ns: the same instant on the odometry clock "
                     "(stamp - clock_offset_s for the kinds in camera_clock_kinds), where the registration's "
                     "trajectory was interpolated",
@@ -168,8 +184,8 @@ def _assemble_recording(out_dir: Path, inputs, cfg, frames: list[dict], streams:
         },
         "per_frame": rows,
     }
-    if inputs.humans:
-        meta["people"] = _recording_people(out_dir, inputs, cfg, streams, ctx)
+    if sources.humans:
+        meta["people"] = _recording_people(out_dir, sources, cfg, recording)
         meta["conventions"].update({
             "people_time_s": "the run's simulation time whose people a frame shows: run_start_s + (odom_time_ns - "
                              "first_odometry_ns) / 1e9 + people_time_offset_s (see people); outside the run: nobody",
@@ -178,41 +194,41 @@ def _assemble_recording(out_dir: Path, inputs, cfg, frames: list[dict], streams:
             "boxes": "boxes/<name>.json per camera stream, COCO person boxes of the masks (file_name: the rendered "
                      "camera/<name>/NNNNNN.png)"})
     (out_dir / "render.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
-    by_stream = {st["key"]: [f["index"] for f in frames if f["stream"] == st["key"]] for st in streams}
+    by_stream = {st.key: [f.index for f in frames if f.stream == st.key] for st in streams}
     n = max(len(v) for v in by_stream.values())
-    picked = [{"row": r} for r in range(n)]
-    write_previews(out_dir, None, picked, cfg,
-                   strip=lambda row: _recording_strip(out_dir, recording_dir, streams, by_stream, row["row"]))
-    summary = {"mode": "recording", "frames": len(frames), "humans": len(inputs.humans),
-               "streams": {st["key"]: len(by_stream[st["key"]]) for st in streams},
-               "skipped_outside_trajectory": sum(st["skipped_outside_trajectory"] for st in streams)}
-    if inputs.humans:
-        summary["people_outside_run"] = sum(st["people_outside_run"] for st in streams)
+    write_previews(out_dir, None, list(range(n)), cfg,
+                   strip=lambda row: _recording_strip(out_dir, sources.recording.path, streams, by_stream, row))
+    summary = {"mode": "recording", "frames": len(frames), "humans": len(sources.humans),
+               "streams": {st.key: len(by_stream[st.key]) for st in streams},
+               "skipped_outside_trajectory": sum(st.skipped_outside_trajectory for st in streams)}
+    if sources.humans:
+        summary["people_outside_run"] = sum(st.people_outside_run for st in streams)
     return summary
 
 
-def _recording_people(out_dir: Path, inputs, cfg, streams: list[dict], ctx: RunContext) -> dict[str, Any]:
+def _recording_people(out_dir: Path, sources: RenderSources, cfg: RenderConfig,
+                      recording: RecordingPlan) -> dict[str, Any]:
     """Recording mode with people: each camera stream's COCO boxes (``boxes/<name>.json``, from its masks)
     and render.json's ``people`` entry (the trajectory, the humans, the time origin)."""
     from nsim.io.coco import coco_from_mask_files, write_coco_json
 
+    streams = recording.streams
     (out_dir / "boxes").mkdir()
     for st in streams:
-        if st["kind"] == "camera":
-            masks = sorted((out_dir / "mask" / st["name"]).glob("*.png"))
-            write_coco_json(out_dir / "boxes" / f"{st['name']}.json",
-                            coco_from_mask_files(masks, [f"camera/{st['name']}/{m.name}" for m in masks]))
-    clock = people_clock(inputs, ctx, ctx.store.get(ctx.store.get(inputs.registration).manifest["inputs"]["recording"]))
-    return {"trajectory": inputs.trajectory, "humans": list(inputs.humans),
-            "people_time_offset_s": cfg.people_time_offset_s, **clock,
-            "people_outside_run": sum(st["people_outside_run"] for st in streams),
+        if st.kind == "camera":
+            masks = sorted((out_dir / "mask" / st.name).glob("*.png"))
+            write_coco_json(out_dir / "boxes" / f"{st.name}.json",
+                            coco_from_mask_files(masks, [f"camera/{st.name}/{m.name}" for m in masks]))
+    return {"trajectory": sources.trajectory.id, "humans": [h.id for h in sources.humans],
+            "people_time_offset_s": cfg.people_time_offset_s, **dataclasses.asdict(recording.people),
+            "people_outside_run": sum(st.people_outside_run for st in streams),
             "rule": "people_time_s = run_start_s + (odom_time_ns - first_odometry_ns) / 1e9 + people_time_offset_s: "
                     "people_time_offset_s 0 puts the run's first tick at the recording's first odometry stamp, as "
                     "nsim capture robot-log records a run"}
 
 
-def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by_stream: dict[str, list[int]],
-                     row: int, height: int = 160) -> np.ndarray:
+def _recording_strip(out_dir: Path, recording_dir: Path, streams: Sequence[RecordedStream],
+                     by_stream: dict[str, list[int]], row: int, height: int = 160) -> np.ndarray:
     """Row ``row`` of the contact sheet: per camera stream its ``row``-th frame, recorded beside rendered;
     per LiDAR stream a view from above, the recorded points grey under the rendered ones; each labelled."""
     import cv2
@@ -231,13 +247,13 @@ def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by
 
     tiles = []
     for st in streams:
-        if row >= len(by_stream[st["key"]]) or st["kind"] == "depth":
+        if row >= len(by_stream[st.key]) or st.kind == "depth":
             continue
-        index = by_stream[st["key"]][row]
-        rel = f"{st['kind']}/{st['name']}/{index:06d}"
-        if st["kind"] == "camera":
+        index = by_stream[st.key][row]
+        rel = f"{st.kind}/{st.name}/{index:06d}"
+        if st.kind == "camera":
             pair = np.concatenate([tile(recording_dir / f"{rel}.png"), tile(out_dir / f"{rel}.png")], axis=1)
-            tiles.append(add_label(pair, [f"{st['name']} #{index} recorded", "rendered"]))
+            tiles.append(add_label(pair, [f"{st.name} #{index} recorded", "rendered"]))
         else:
             def xyz(path: Path) -> np.ndarray:
                 p = read_points_exr(path)
@@ -246,7 +262,7 @@ def _recording_strip(out_dir: Path, recording_dir: Path, streams: list[dict], by
             img = _bev_points(xyz(recording_dir / f"{rel}.exr"), colour=(110, 110, 110))
             img = _bev_points(xyz(out_dir / f"{rel}.exr"), img=img)
             tiles.append(add_label(cv2.resize(img, (height, height), interpolation=cv2.INTER_NEAREST),
-                                   f"{st['name']} #{index} (recorded grey)"))
+                                   f"{st.name} #{index} (recorded grey)"))
     return np.concatenate(tiles, axis=1) if tiles else add_label(np.zeros((height, height, 3), np.uint8), "no frame")
 
 
@@ -302,14 +318,15 @@ def _frame_strip(out_dir: Path, rig, index: int, time_s: float | None = None, he
     return np.concatenate(tiles, axis=1) if tiles else add_label(np.zeros((height, height, 3), np.uint8), when)
 
 
-def write_previews(out_dir: Path, rig, frames: list[dict], cfg, strip=None) -> None:
-    """The contact sheet (and video) of ``frames``; ``strip(frame) -> (H, W, 3) uint8`` draws one row
-    (default: the rig's cameras and LiDAR BEVs at the frame's index)."""
+def write_previews(out_dir: Path, rig: Rig | None, frames: Sequence[Any], cfg: RenderConfig,
+                   strip: Callable[[Any], np.ndarray] | None = None) -> None:
+    """The contact sheet (and video) of ``frames``, one row each; ``strip(frame) -> (H, W, 3) uint8`` draws
+    one (default, for ``TickFrame``s and ``PoseFrame``s: the rig's cameras and LiDAR BEVs at the frame's index)."""
     from nsim.io.images import write_image
 
     if strip is None:
-        def strip(f: dict) -> np.ndarray:
-            return _frame_strip(out_dir, rig, f["index"], f.get("time_s"))
+        def strip(f: TickFrame | PoseFrame) -> np.ndarray:
+            return _frame_strip(out_dir, rig, f.index, f.time_s)
     (out_dir / "preview").mkdir()
     picked = frames[:: cfg.preview_every][: cfg.preview_max_rows]
     strips = [strip(f) for f in picked]
@@ -324,8 +341,8 @@ def write_previews(out_dir: Path, rig, frames: list[dict], cfg, strip=None) -> N
         first = strip(frames[0])
         h, w = first.shape[:2]
         with open_mp4(out_dir / "preview" / "preview.mp4", cfg.video_fps) as video:
-            for f in frames:
-                row = first if f is frames[0] else strip(f)
+            for j, f in enumerate(frames):
+                row = first if j == 0 else strip(f)
                 if row.shape[:2] != (h, w):
                     row = cv2.resize(row, (w, h))
                 video.write(row)

@@ -4,15 +4,16 @@ measured as the sensor measures, written file by file.
 ``ShardRenderer(job, cfg)`` is the factory's product for ``nsim.rendering.engine.run_shards``: it loads
 the scene model, its occupancy grid, the rig (or the recorded streams' sensors) and the people
 (``nsim.rendering.people.HumanSet``) once, then ``render_shard(i, out_dir)`` writes shard ``i``'s
-frames into ``out_dir`` (the file layout is the artifact's, documented in ``nsim.stages.render``)
-and a ``frames.json`` of per-frame statistics that ``nsim.rendering.render_output.assemble`` reads.
+frames into ``out_dir`` (the file layout is the artifact's, documented in
+``nsim.rendering.render_output``) and a ``frames.json`` of per-frame statistics that
+``nsim.rendering.render_output.assemble`` reads.
 
-``job`` (built by the stage, plain JSON-able values): ``scene_dir``, ``human_dirs``,
-``trajectory_file``, ``rig`` (``Rig.to_dict()``, trajectory mode), ``recording_dir`` and
-``streams`` (recording mode), ``seed``, ``device``, ``shards`` (the frames of each shard),
-``baked_dir`` (``method: baked``: the baked scene, ``nsim.rendering.baked``, the scene is rendered from;
-the scene checkpoint still gives the rays' range, the background and ``fill``).
-``cfg``: the stage's ``nsim.stages.render.Config``.
+``job``: a ``nsim.rendering.render_job.ShardJob`` (``nsim.rendering.render_plan.shard_job``; plain,
+picklable data): the folders of the scene checkpoint, the human checkpoints and the baked scene
+(``method: baked``: the scene is rendered from it, ``nsim.rendering.baked``; the scene checkpoint
+still gives the rays' range, the background and ``fill``), the rig (trajectory mode) or the recorded
+streams (recording mode), the seed, the device and the frames of each shard.
+``cfg``: the render's ``nsim.rendering.render_plan.RenderConfig``.
 
 Measurement is the rig's (``nsim.sensors.rig``): ``CameraSensor.expose`` (exposure, grey),
 ``CameraSensor.measure_depth`` (the depth model: noise, quantisation, valid range) and
@@ -28,11 +29,15 @@ import hashlib
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nsim.rendering.people import HumanSet
+from nsim.rendering.people import CompositeConfig, HumanSet
+from nsim.rendering.render_job import PoseFrame, RecordedFrame, RecordedStream, ShardJob, TickFrame
+
+if TYPE_CHECKING:
+    from nsim.rendering.render_plan import RenderConfig
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +50,8 @@ DEPTH_ATTRIBUTE = {
 class ShardRenderer:
     """Holds the loaded models; renders one shard of frames into a directory (a Ray actor keeps one)."""
 
-    def __init__(self, job: dict[str, Any], cfg) -> None:
-        """``job``: what to render (the module docstring); ``cfg``: the stage's ``Config``."""
+    def __init__(self, job: ShardJob, cfg: RenderConfig) -> None:
+        """``job``: what to render (the module docstring); ``cfg``: the render's settings."""
         import torch
 
         from nsim.rendering.model import load_model
@@ -54,8 +59,10 @@ class ShardRenderer:
 
         self.job = job
         self.cfg = cfg
-        self.device = torch.device(job["device"])
-        scene_dir = Path(job["scene_dir"])
+        self.compositing = CompositeConfig(method=cfg.method, march=cfg.march, chunk_rays=cfg.chunk_rays,
+                                           culling=cfg.culling)
+        self.device = torch.device(job.device)
+        scene_dir = Path(job.scene_dir)
         self.model = load_model(scene_dir, device=self.device).eval()
         if self.cfg.background != "scene":
             self.model.sampler_cfg = dataclasses.replace(self.model.sampler_cfg, background=self.cfg.background)
@@ -72,23 +79,17 @@ class ShardRenderer:
         if cfg.method == "baked":
             from nsim.rendering.baked import BakedScene
 
-            self.baked = BakedScene.load(job["baked_dir"], device=self.device)
+            self.baked = BakedScene.load(job.baked_dir, device=self.device)
             if self.baked.uses_field:
                 self.baked = self.baked.with_field(self.model.field)
             if self.cfg.background != "scene":
                 self.baked = dataclasses.replace(self.baked, background=self.cfg.background)
-        self.rig = None
-        if job["rig"] is not None:
-            from nsim.sensors.rig import Rig
-
-            self.rig = Rig.from_resolved(job["rig"])
-            if not cfg.noise:
-                self.rig = _without_noise(self.rig)
-        self.humans = (HumanSet.load(job["human_dirs"], job["trajectory_file"], self.device, job.get("person_model"))
-                       if job["human_dirs"] else None)
+        self.rig = job.rig if job.rig is None or cfg.noise else _without_noise(job.rig)
+        self.humans = (HumanSet.load(job.human_dirs, job.trajectory_npz, self.device, job.person_model)
+                       if job.human_dirs else None)
         self.streams = {}  # recording mode: stream key -> its CameraSensor (camera, depth) or None (LiDAR)
-        for st in job.get("streams") or ():
-            self.streams[st["key"]] = _stream_sensor(st)
+        for st in job.streams or ():
+            self.streams[st.key] = _stream_sensor(st)
 
     # -- rays -> samples -> outputs
     def _render_rays(self, origins: np.ndarray, dirs: np.ndarray, valid: np.ndarray, near: float, far: float,
@@ -118,14 +119,15 @@ class ShardRenderer:
             out = render_baked(self.baked, rays, cfg.chunk_rays, return_samples=bool(people), colour=colour,
                                fallback=nerf, may_fall_back=torch.as_tensor(valid, device=self.device))
             if people:  # the people's samples merged with the baked scene's, as with the NeRF's
-                out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg, scene_out=out)
+                out, instance = self.humans.composite(self.model, self.grid, rays, people, self.compositing,
+                                                      scene_out=out)
             else:
                 instance = np.zeros(len(o), dtype=np.uint16)
         elif not people:
             out = render_rays(self.model, rays, cfg.method, self.grid, cfg.march, cfg.chunk_rays)
             instance = np.zeros(len(o), dtype=np.uint16)
         else:
-            out, instance = self.humans.composite(self.model, self.grid, rays, people, cfg)
+            out, instance = self.humans.composite(self.model, self.grid, rays, people, self.compositing)
         r = out.depth_median if cfg.depth_estimate == "median" else out.depth
         acc = out.accumulation
         surface = acc >= cfg.min_accumulation
@@ -139,27 +141,27 @@ class ShardRenderer:
                 "acc": acc.cpu().numpy(), "instance": np.where(valid, instance, 0).astype(np.uint16)}
 
     def _rng(self, frame_index: int, sensor: str) -> np.random.Generator:
-        digest = hashlib.sha256(f"nsim.render:{self.job['seed']}:{frame_index}:{sensor}".encode()).digest()
+        digest = hashlib.sha256(f"nsim.render:{self.job.seed}:{frame_index}:{sensor}".encode()).digest()
         return np.random.default_rng(int.from_bytes(digest[:8], "little"))
 
     def render_shard(self, shard: int, out_dir: Path) -> dict:
         out_dir = Path(out_dir)
         stats = []
-        for frame in self.job["shards"][shard]:
-            if "stream" in frame:
+        for frame in self.job.shards[shard]:
+            if isinstance(frame, RecordedFrame):
                 stats.append(self._render_recording_frame(frame, out_dir))
-            elif self.rig is not None:
+            elif isinstance(frame, TickFrame):
                 stats.append(self._render_tick(frame, out_dir))
             else:
                 stats.append(self._render_pose_frame(frame, out_dir))
         (out_dir / "frames.json").write_text(json.dumps(stats, indent=1, sort_keys=True) + "\n")
         return {"frames": len(stats)}
 
-    def _render_tick(self, frame: dict, out_dir: Path) -> dict:
+    def _render_tick(self, frame: TickFrame, out_dir: Path) -> dict:
         from nsim.sensors.rig import CameraSensor, LidarSensor
 
-        body = np.asarray(frame["body_to_world"], dtype=np.float64)
-        i = frame["index"]
+        body = frame.body_to_world
+        i = frame.index
         row: dict[str, Any] = {"index": i}
         posed = self.humans.joint_transforms(i) if self.humans else []
         for s in self.rig.sensors:
@@ -174,17 +176,17 @@ class ShardRenderer:
                 row[s.name] = self._write_lidar(out_dir, s, i, res)
         return row
 
-    def _render_pose_frame(self, frame: dict, out_dir: Path) -> dict:
-        from nsim.geometry.cameras import Camera, dirs_to_world, fill_invalid_dirs
+    def _render_pose_frame(self, frame: PoseFrame, out_dir: Path) -> dict:
+        from nsim.geometry.cameras import dirs_to_world, fill_invalid_dirs
 
-        cam = Camera.from_dict(frame["camera"])
-        c2w = np.asarray(frame["cam_to_world"], dtype=np.float64)
+        cam = frame.camera
+        c2w = frame.cam_to_world
         dirs_cam = cam.pixel_dirs_cam().reshape(-1, 3)
         filled, valid = fill_invalid_dirs(dirs_cam)
         o, d = dirs_to_world(filled, c2w)
         res = self._render_rays(o, d, valid, 0.0, float("inf"), [], cam, c2w)
         h, w = cam.height, cam.width
-        i = frame["index"]
+        i = frame.index
         from nsim.io.exr import write_depth_exr
         from nsim.io.images import to_uint8, write_image
 
@@ -195,32 +197,32 @@ class ShardRenderer:
         write_depth_exr(out_dir / "frames" / "depth" / f"{i:06d}.exr", z, attributes={"nsim_depth": DEPTH_ATTRIBUTE["z"]})
         return {"index": i, "frames": {"mean_accumulation": float(np.mean(res["acc"]))}}
 
-    def _render_recording_frame(self, frame: dict, out_dir: Path) -> dict:
+    def _render_recording_frame(self, frame: RecordedFrame, out_dir: Path) -> dict:
         """One frame of one recorded stream, written where the recording keeps it (module docstring)."""
         from nsim.io.exr import write_depth_exr, write_points_exr
         from nsim.io.images import to_uint8, write_image
 
-        key, i = frame["stream"], frame["index"]
+        key, i = frame.stream, frame.index
         kind, name = key.split("/", 1)
         path = out_dir / kind / name / f"{i:06d}"
         path.parent.mkdir(parents=True, exist_ok=True)
         s = self.streams[key]
-        posed = self.humans.joint_transforms_at(frame["people_time_s"]) if self.humans else []
+        posed = self.humans.joint_transforms_at(frame.people_time_s) if self.humans else []
         if kind == "lidar":
             from nsim.io.exr import read_points_exr
             from nsim.rendering.recording import point_directions, points_from_ranges
 
-            rec = read_points_exr(Path(self.job["recording_dir"]) / kind / name / f"{i:06d}.exr")
+            rec = read_points_exr(Path(self.job.recording_dir) / kind / name / f"{i:06d}.exr")
             xyz_rec = np.stack([rec[c].reshape(-1) for c in "XYZ"], axis=-1)
             dirs, valid = point_directions(xyz_rec)
-            pose = np.asarray(frame["sensor_to_world"], dtype=np.float64)
+            pose = frame.sensor_to_world
             o = np.broadcast_to(pose[:3, 3], dirs.shape)
             res = self._render_rays(o, dirs @ pose[:3, :3].T, valid, 0.0, float("inf"), posed, colour=False)
             xyz = points_from_ranges(dirs, res["range"]).astype(np.float32)
             write_points_exr(path.with_suffix(".exr"), {"X": xyz[None, :, 0], "Y": xyz[None, :, 1], "Z": xyz[None, :, 2],
                                                          "range": res["range"].astype(np.float32)[None, :]})
             return {"stream": key, "index": i, "points": len(xyz), "returns": int(np.isfinite(res["range"]).sum())}
-        body = np.asarray(frame["body_to_world"], dtype=np.float64)
+        body = frame.body_to_world
         o, d = s.rays(body)
         valid = np.isfinite(d).all(-1)
         res = self._render_rays(o, d, valid, 0.0, float("inf"), posed, s.camera, s.world_pose(body))
@@ -287,18 +289,17 @@ class ShardRenderer:
         return {"returns": int(np.isfinite(ranges).sum())}
 
 
-def _stream_sensor(stream: dict[str, Any]):
+def _stream_sensor(stream: RecordedStream):
     """A recorded camera or depth stream as the rig's ``CameraSensor`` (its rays, grey conversion and
     z-depth are the rig's); None for a LiDAR stream (its rays are its recorded points)."""
-    from nsim.geometry import Camera
     from nsim.sensors.depth import DepthConfig
     from nsim.sensors.rig import CameraSensor
 
-    if stream["kind"] == "lidar":
+    if stream.kind == "lidar":
         return None
-    return CameraSensor(name=stream["name"], sensor_to_body=np.asarray(stream["sensor_to_body"], dtype=np.float64),
-                        camera=Camera.from_dict(stream["camera"]), kind=stream["kind"], color=stream["color"],
-                        depth=DepthConfig(kind="z") if stream["kind"] == "depth" else None)
+    return CameraSensor(name=stream.name, sensor_to_body=stream.sensor_to_body, camera=stream.camera,
+                        kind=stream.kind, color=stream.color,
+                        depth=DepthConfig(kind="z") if stream.kind == "depth" else None)
 
 
 

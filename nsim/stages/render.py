@@ -4,7 +4,7 @@ Three modes:
 
 ``trajectory``
     For each selected tick of a ``trajectory`` artifact (``nsim simulate``), for each sensor of a
-    rig (``configs/robots/*.yaml``): world pose = robot pose x mount; rays from the camera model
+    rig (``nsim/configs/robots/*.yaml``): world pose = robot pose x mount; rays from the camera model
     or the LiDAR pattern; the scene NeRF rendered along them (marching with the baked occupancy
     grid, early ray termination) and, with human checkpoints, every visible person's samples
     merged with the scene's in depth order (one volume rendering over both).
@@ -32,7 +32,8 @@ Sharding: frames are cut into shards of ``shard_frames``, each rendered into its
 ones); the artifact is published last. Sensor noise is seeded by (seed, frame, sensor), so the result
 does not depend on the shard size, the engine or the number of workers.
 
-This module reads the inputs, keys the run and publishes; the work is the core's:
+This module resolves the inputs (into ``nsim.rendering.render_job.RenderSources``: the artifacts'
+folders), keys the run and publishes; the work is the core's:
 ``nsim.rendering.render_plan`` (the adapted rig, the frames of each mode, the shards),
 ``nsim.rendering.shard`` (rendering and measuring one shard), ``nsim.rendering.people`` (the run's
 people: posing, culling, compositing) and ``nsim.rendering.render_output`` (render.json, previews,
@@ -49,11 +50,12 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from nsim.config import from_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.rendering import render_plan
+from nsim.rendering.render_job import ArtifactDir, RenderSources
 from nsim.rendering.render_plan import RenderConfig
+from nsim.stages.runner import cached, device_kind, rerun
 
 STAGE = "render"
 VERSION = 6  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
@@ -85,20 +87,9 @@ class Inputs:
     baked: str | None = None
 
     def ids(self) -> dict[str, str]:
-        out = {}
-        if self.baked:
-            out["baked"] = self.baked
-        if self.trajectory:
-            out["trajectory"] = self.trajectory
-        if self.poses:
-            out["poses"] = self.poses
-        if self.registration:
-            out["registration"] = self.registration
-        if self.scene:
-            out["scene"] = self.scene
-        for k, h in enumerate(self.humans):
-            out[f"human{k}"] = h
-        return out
+        named = {"baked": self.baked, "trajectory": self.trajectory, "poses": self.poses,
+                 "registration": self.registration, "scene": self.scene}
+        return {k: v for k, v in named.items() if v} | {f"human{k}": h for k, h in enumerate(self.humans)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +106,35 @@ def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     out = resolve_mode_inputs(inputs, ctx)
     if inputs.baked is None:
         return out
-    return dataclasses.replace(out, baked=render_plan.resolve_baked(ctx, inputs.baked, out.scene))
+    return dataclasses.replace(out, baked=resolve_baked(ctx, inputs.baked, out.scene))
+
+
+def resolve_baked(ctx: RunContext, spec: str, scene: str) -> str:
+    """The ``baked-scene`` artifact ``spec`` (``--baked``), checked: baked from the render's scene checkpoint."""
+    store = ctx.store
+    baked = store.resolve(spec)
+    art = store.get(baked)
+    if art.kind != "baked-scene":
+        raise InputError(f"--baked {spec}: a {art.kind} artifact; render needs a baked-scene artifact (nsim bake)")
+    made_from = art.manifest.get("inputs", {}).get("scene")
+    if made_from != scene:
+        raise InputError(f"--baked {spec}: baked from scene {str(made_from)[:12]}, the render's scene is {scene[:12]} "
+                         f"(nsim bake {scene[:12]})")
+    return baked
+
+
+def sources_of(inputs: Inputs, ctx: RunContext) -> RenderSources:
+    """The resolved inputs' folders (held by the store while the run lasts), for the core."""
+    store = ctx.store
+
+    def located(art_id: str | None) -> ArtifactDir | None:
+        return None if art_id is None else ArtifactDir(art_id, store.get(art_id).path)
+
+    recording = store.get(inputs.registration).manifest["inputs"]["recording"] if inputs.registration else None
+    return RenderSources(scene=located(inputs.scene), trajectory=located(inputs.trajectory), poses=located(inputs.poses),
+                         registration=located(inputs.registration), recording=located(recording),
+                         humans=tuple(located(h) for h in inputs.humans), baked=located(inputs.baked),
+                         rig_file=inputs.rig)
 
 
 def resolve_mode_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
@@ -131,7 +150,7 @@ def resolve_mode_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     if inputs.trajectory is not None:
         traj = store.resolve(inputs.trajectory, kind="trajectory")
         if inputs.rig is None:
-            raise InputError("render --trajectory: a rig file is needed (--rig configs/robots/spot.yaml)")
+            raise InputError("render --trajectory: a rig file is needed (--rig nsim/configs/robots/spot.yaml)")
     else:
         poses = store.resolve(inputs.poses)
         kind = store.get(poses).kind
@@ -179,7 +198,7 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     if inputs.scene is None:
         raise InputError("render --recording: pass --scene (a scene-checkpoint artifact of the registration's world)")
     scene = store.resolve(inputs.scene, kind="scene-checkpoint")
-    if not render_plan.scene_is_metric(ctx, scene):
+    if not render_plan.scene_is_metric(store.get(scene).file("scene.json")):
         raise InputError(f"--scene {inputs.scene}: the scene's scale is arbitrary (trained on poses without a metric "
                          "scale); a registered recording lives in a metric world")
     trained_on = store.get(scene).manifest.get("inputs", {}).get("poses")
@@ -194,13 +213,13 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig, person_model=None) -> str:
     from nsim.rendering.people import default_checkpoint
 
-    extra = {"device": "cuda" if str(ctx.device).startswith("cuda") else "cpu"}
+    extra = {"device": device_kind(ctx.device)}
     if person_model is not None and person_model != [default_checkpoint(k, len(inputs.humans))
                                                      for k in range(len(person_model))]:
         extra["people"] = person_model  # the scenario names checkpoints (refs can move: the resolved choice)
     if cfg.method == "baked" and inputs.baked is None:  # baked here: with BakeConfig()'s settings
         from nsim.config import to_dict
-        from nsim.rendering.baked import BakeConfig
+        from nsim.rendering.bake_bricks import BakeConfig
 
         extra["bake"] = to_dict(BakeConfig())
     if rig is not None:
@@ -220,31 +239,40 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
 
     store = ctx.store
     inputs = resolve_inputs(inputs, ctx)
-    render_plan.check_method(inputs, cfg)
-    rig = render_plan.load_rig(inputs, cfg)
-    people = render_plan.person_models(inputs, ctx)
-    key = action_key(inputs, cfg, ctx, rig, people)
-    if not ctx.force and (hit := store.lookup(key)) is not None:
-        return Outputs(render=hit.id, cache_hit=True)
+    if inputs.baked is not None and cfg.method != "baked":
+        raise InputError(f"--baked {inputs.baked[:12]}: renders from a baked scene need --set method=baked "
+                         f"(method is {cfg.method})")
+    rig = None
+    if inputs.trajectory is not None and inputs.rig is not None:  # trajectory mode (else the people's run)
+        from nsim.sensors.rig import Rig
 
-    streams = None
-    if inputs.registration is not None:
-        frames, streams = render_plan.plan_recording(inputs, cfg, ctx)
-    else:
-        frames = render_plan.plan_frames(inputs, cfg, ctx)
+        rig = render_plan.adapt_rig(Rig.load(inputs.rig), cfg)
+    sources = sources_of(inputs, ctx)
+    people = None  # which human checkpoint draws each person of the run
+    if inputs.humans and inputs.trajectory is not None:
+        people = render_plan.person_models(sources.trajectory, inputs.humans,
+                                           lambda name: store.find(name, kind="human-checkpoint"))
+    key = action_key(inputs, cfg, ctx, rig, people)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(render=hit, cache_hit=True)
+
+    recording = render_plan.plan_recording(sources, cfg) if sources.recording is not None else None
+    frames = recording.frames if recording is not None else render_plan.plan_frames(sources, cfg)
     shards = render_plan.shards_of(frames, cfg)
     shard_root = store.root / "tmp" / f"{STAGE}.{key[:24]}.shards"
     shard_root.mkdir(parents=True, exist_ok=True)
     keys = [render_plan.shard_key(key, s) for s in shards]
     present = sum((shard_root / k).is_dir() for k in keys)
-    job = render_plan.shard_job(inputs, cfg, ctx, rig, streams, shards, shard_root, people)
+    baked_dir = None
+    if cfg.method == "baked":  # the --baked artifact, else baked here
+        baked_dir = sources.baked.path if sources.baked else render_plan.bake_here(sources.scene, str(ctx.device), shard_root)
+    job = render_plan.shard_job(sources, rig, recording, shards, ctx.seed, str(ctx.device), baked_dir, people)
     factory = partial(ShardRenderer, job, cfg)
     done = run_shards(factory, list(range(len(shards))), shard_root, lambda i: keys[i], engine or EngineConfig(),
                       progress=ctx.show_progress)
     with store.publish(kind="render", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
                        seed=ctx.seed) as out:
-        summary = assemble(out.dir, inputs, cfg, rig, frames, [done[i] for i in range(len(shards))], ctx,
-                           streams=streams, recording_dir=job["recording_dir"])
+        summary = assemble(out.dir, sources, cfg, rig, frames, [done[i] for i in range(len(shards))], recording)
         out.summary.update(summary)
         if people is not None:  # which human checkpoint drew each person (person_checkpoints)
             out.summary["people_checkpoints"] = [inputs.humans[m] for m in people]
@@ -258,10 +286,8 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     summary = manifest.get("summary", {})
     rig_file = summary.get("rig_file")
     ids = manifest["inputs"]
-    cfg = from_dict(Config, manifest["config"])
-    ctx = dataclasses.replace(ctx, force=True)
     inputs = Inputs(trajectory=ids.get("trajectory"), poses=ids.get("poses"), scene=ids.get("scene"),
                     rig=Path(rig_file) if rig_file else None,
                     humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")),
                     registration=ids.get("registration"), baked=ids.get("baked"))
-    return run(inputs, cfg, ctx).render
+    return rerun(run, inputs, Config, manifest, ctx).render

@@ -161,7 +161,8 @@ def test_scene_trainer_pixel_dirs_table_and_per_batch_agree(cam):
     check_filled(cam, o, d)
 
 
-def test_render_shard_pose_frame(cam, monkeypatch, tmp_path):
+def test_render_shard_pose_frame(cam, tmp_path):
+    from nsim.rendering.render_job import PoseFrame
     from nsim.rendering.shard import ShardRenderer
 
     seen = {}
@@ -173,10 +174,10 @@ def test_render_shard_pose_frame(cam, monkeypatch, tmp_path):
         seen.update(o=o, d=d, valid=valid)
         raise Stop
 
-    monkeypatch.setattr(Camera, "from_dict", classmethod(lambda cls, _: cam))
     shard = object.__new__(ShardRenderer)
     shard._render_rays = capture
     with pytest.raises(Stop):
-        shard._render_pose_frame({"camera": {}, "cam_to_world": C2W.tolist(), "index": 0}, tmp_path)
+        shard._render_pose_frame(PoseFrame(index=0, time_s=None, name="000000.png", cam_to_world=C2W, camera=cam),
+                                 tmp_path)
     assert seen["d"].dtype == np.float64
     check_filled(cam, seen["o"], seen["d"], seen["valid"], atol=1e-12)

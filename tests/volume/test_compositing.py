@@ -13,7 +13,7 @@ from nsim.human.gait import walk_cycle
 from nsim.human.motion import LocomotionLoop
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.skeleton import forward_kinematics, nsim_skeleton
-from nsim.rendering.people import HumanSet
+from nsim.rendering.people import HumanSet, PersonView
 from nsim.volume import quadrature
 from nsim.volume.compositing import composite, composite_sets, merge_samples, set_weights
 from nsim.volume.rays import Rays
@@ -73,7 +73,7 @@ def render_with_people(monkeypatch, m, T, rays: Rays, scene: RaySamples, bg: tor
 
     monkeypatch.setattr("nsim.rendering.renderer.render_rays", fake_render_rays)
     cfg = SimpleNamespace(method="proposal", march=None, chunk_rays=1024, culling=True)
-    people = [{"k": 0, "T": T, "model": m, "mask": torch.ones(len(rays), dtype=torch.bool)}]
+    people = [PersonView(k=0, joint_transforms=T, model=m, ray_mask=torch.ones(len(rays), dtype=torch.bool))]
     return HumanSet([m], {}, "cpu").composite(None, None, rays, people, cfg)
 
 
