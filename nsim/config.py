@@ -304,15 +304,19 @@ def configs_dir() -> Path:
     return Path(env) if env else PACKAGED_CONFIGS
 
 
-def read_yaml(path: Path, what: str = "config") -> Any:
+def read_text_file(path: str | os.PathLike[str], what: str, error: type[Exception] = ConfigError) -> str:
+    """The text of ``path``, or one ``error`` line: ``<path>: <what> file not found`` / ``cannot read <what> file``."""
     path = Path(path)
     try:
-        text = path.read_text()
+        return path.read_text()
     except FileNotFoundError:
-        raise ConfigError(f"{path}: {what} file not found") from None
+        raise error(f"{path}: {what} file not found") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read {what} file ({exc.__class__.__name__})") from None
-    return parse_yaml(text, path)
+        raise error(f"{path}: cannot read {what} file ({exc.__class__.__name__})") from None
+
+
+def read_yaml(path: Path, what: str = "config") -> Any:
+    return parse_yaml(read_text_file(path, what), path)
 
 
 def parse_yaml(text: str, path: str | os.PathLike[str], error: type[Exception] = ConfigError) -> Any:

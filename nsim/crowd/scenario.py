@@ -69,7 +69,7 @@ from typing import Any
 
 import numpy as np
 
-from nsim.config import canonical_json, configs_dir
+from nsim.config import canonical_json, configs_dir, read_text_file
 from nsim.crowd.controllers import SENSOR_RANGE_M, RobotLimits, resolve_python_spec
 from nsim.crowd.neighbours import points_in_polygons, segments_from_polygons
 from nsim.crowd.paths import clearance_m, enclosed, leg_crossings, ring_problem, waypoint_poses, yaw_of_poses
@@ -142,12 +142,7 @@ def read_scenario_file(path: str | Path) -> Any:
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
         raise InputError(f"{path}: expected a scenario file ending in .json, .yaml or .yml")
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{path}: scenario file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the scenario file ({exc.__class__.__name__})") from None
+    text = read_text_file(path, "scenario", error=InputError)
     if path.suffix.lower() == ".json":
         try:
             return json.loads(text, object_pairs_hook=_reject_duplicates, parse_constant=float)

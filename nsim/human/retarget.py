@@ -38,11 +38,10 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from nsim.config import configs_dir, parse_yaml
+from nsim.config import configs_dir, parse_yaml, read_text_file
 from nsim.errors import InputError
 from nsim.human.motion import MotionClip
 from nsim.human.skeleton import Skeleton, local_rotations_from_global, quats_from_matrices
@@ -151,13 +150,7 @@ class JointMap:
 
 def load_joint_map(path: str | os.PathLike[str]) -> JointMap:
     """Read a joint map YAML ``{nsim_joint: source_name | [source_names]}``."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{path}: joint map file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read joint map ({exc.__class__.__name__})") from None
+    text = read_text_file(path, "joint map", error=InputError)
     return JointMap.from_mapping(parse_yaml(text, path, error=InputError), str(path))
 
 

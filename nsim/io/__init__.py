@@ -16,6 +16,15 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+def fsync_path(path: str | os.PathLike) -> None:
+    """Make a file's data, or a directory's entries (names created or renamed in it), durable."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, tmp: str | os.PathLike | None = None) -> Iterator[Path]:
     """Yield a not-yet-existing temporary path next to `path` for the caller to write.

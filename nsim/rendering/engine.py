@@ -63,7 +63,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from nsim.errors import ConfigError, NsimError
-from nsim.io import atomic_write_text
+from nsim.io import atomic_write_text, fsync_path
 from nsim.progress import progress_bar
 
 logger = logging.getLogger(__name__)
@@ -221,7 +221,7 @@ def publish_shard(renderer: ShardRenderer, shard: int, shard_root: Path, key: st
             logger.info("shard %d: %s was published by another writer; dropping this copy", shard, key)
             shutil.rmtree(tmp, ignore_errors=True)
             return ShardResult(shard, final, read_summary(final), rendered=False)
-        _fsync_path(shard_root)
+        fsync_path(shard_root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -521,14 +521,6 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _fsync_path(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _write_atomic(path: Path, text: str, tmp_name: str) -> None:
     """``text`` to ``path`` through a temp file named after the shard's temp dir (``_temps_of`` finds it)."""
     atomic_write_text(path, text, tmp=path.with_name(f"{tmp_name}{SUMMARY_SUFFIX}"))
@@ -537,8 +529,8 @@ def _write_atomic(path: Path, text: str, tmp_name: str) -> None:
 def _fsync_tree(root: Path) -> None:
     for dirpath, _, filenames in os.walk(root):
         for name in filenames:
-            _fsync_path(Path(dirpath) / name)
-        _fsync_path(Path(dirpath))
+            fsync_path(Path(dirpath) / name)
+        fsync_path(Path(dirpath))
 
 
 def shard_temps(shard_root: Path) -> Sequence[Path]:

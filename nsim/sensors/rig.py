@@ -60,7 +60,7 @@ from typing import Any, ClassVar
 import numpy as np
 import yaml
 
-from nsim.config import from_dict, param, parse_yaml, to_dict
+from nsim.config import from_dict, param, parse_yaml, read_text_file, to_dict
 from nsim.errors import ConfigError, NsimError
 from nsim.geometry.cameras import MODELS, Camera, dirs_to_world
 from nsim.geometry.transforms import is_rotation, make_se3, matrix_from_quat_wxyz
@@ -495,12 +495,7 @@ class Rig:
     def load(cls, path: str | Path) -> Rig:
         """Read and validate a rig YAML file (see the module docstring)."""
         path = Path(path)
-        try:
-            text = path.read_text()
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: rig file not found") from None
-        except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: cannot read rig file ({exc.__class__.__name__})") from None
+        text = read_text_file(path, "rig")
         data = parse_yaml(text, path)
         return cls.from_data(data, source=path, lines=_line_index(text))
 

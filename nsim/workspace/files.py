@@ -8,7 +8,7 @@ import stat
 from pathlib import Path
 
 from nsim.errors import WorkspaceError
-from nsim.io import atomic_write_bytes
+from nsim.io import atomic_write_bytes, fsync_path
 from nsim.workspace.writers import tmp_name
 
 _CHUNK = 1 << 20
@@ -41,15 +41,6 @@ def sha256_path(path: Path) -> str:
     else:
         h.update(sha256_file(path)[0].encode())
     return h.hexdigest()
-
-
-def fsync_path(path: Path) -> None:
-    """Make a file's data, or a directory's entries (names created or renamed in it), durable."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _syncfs(path: Path) -> bool:

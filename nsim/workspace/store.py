@@ -63,10 +63,10 @@ from typing import Any
 
 from nsim.config import canonical_json, to_dict
 from nsim.errors import InputError, WorkspaceError
+from nsim.io import fsync_path
 from nsim.io.canonical import canonical_floats
 from nsim.workspace.artifacts import KINDS, MANIFEST, Artifact, is_hex, is_id, manifest_id, safe_relpath
 from nsim.workspace.files import (
-    fsync_path,
     read_small,
     sha256_file,
     sha256_path,
