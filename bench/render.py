@@ -308,7 +308,7 @@ def placed_trajectory(ctx: RunContext, traj: str, offsets, tag: str) -> str:
     return out.ref
 
 
-def visible_people(ctx: RunContext, traj: str, human: str, frames: list[dict], rig) -> dict[str, list[int]]:
+def visible_people(ctx: RunContext, traj: str, human: str, frames: list, rig) -> dict[str, list[int]]:
     """``{"tick/sensor": [people]}`` that ``HumanSet.visible`` (culling on) keeps, with the rays the stage casts."""
     import torch
 
@@ -316,15 +316,16 @@ def visible_people(ctx: RunContext, traj: str, human: str, frames: list[dict], r
     hs = HumanSet.load([str(store.get(human).path)], str(store.get(traj).file("trajectory.npz")),
                        torch.device("cpu"))
     seen = {}
-    for f in frames:
-        body = np.asarray(f["body_to_world"], dtype=np.float64)
+    for f in frames:  # nsim.rendering.render_job.TickFrame
+        body = np.asarray(f.body_to_world, dtype=np.float64)
+        posed = hs.joint_transforms(f.index)
         for s in rig.sensors:
             o, d = s.rays(body)
             valid = np.isfinite(d).all(-1)
             o = torch.as_tensor(np.array(o, dtype=np.float32))
             d = torch.as_tensor(np.where(valid[:, None], d, [0.0, 0.0, 1.0]), dtype=torch.float32)
             cam, c2w = (s.camera, s.world_pose(body)) if s.type == "camera" else (None, None)
-            seen[f"{f['index']}/{s.name}"] = [p["k"] for p in hs.visible(f["index"], o, d, cam, c2w, True)]
+            seen[f"{f.index}/{s.name}"] = [p.k for p in hs.visible(posed, o, d, cam, c2w, True)]
     return seen
 
 
@@ -460,7 +461,7 @@ def culling_bench(ctx: RunContext, traj: str, scene_id: str, human: str, args) -
     # (a) out of view: behind the robot, Spot's front cameras
     probe = cfg(True, FRONT_CAMERAS, args.culling_scale)
     inputs = render.resolve_inputs(render.Inputs(trajectory=behind, scene=scene_id, rig=SPOT), ctx)
-    frames = plan_frames(inputs, probe, ctx)
+    frames = plan_frames(render.sources_of(inputs, ctx), probe)
     rig_a = adapt_rig(Rig.load(SPOT), probe)
     seen = visible_people(ctx, behind, human, frames, rig_a)
     res["people"] = int(np.load(ctx.store.get(behind).file("trajectory.npz"))["position_m"].shape[1])
