@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -73,7 +74,7 @@ def test_bad_controllers_exit_2_naming_file_and_field_and_publish_nothing(run_cl
 
 def test_controllers_sweep_compares_on_the_same_cells(run_cli, tmp_path):
     (tmp_path / "goals.json").write_text(_scenario(tmp_path, None).read_text())
-    (tmp_path / "user.py").write_text((configs_dir().parent / "tests" / "crowd" / "user_controllers.py").read_text())
+    (tmp_path / "user.py").write_text((Path(__file__).resolve().parents[1] / "crowd" / "user_controllers.py").read_text())
     sweep = tmp_path / "sweep.yaml"
     sweep.write_text(
         "scenario: goals.json\nseeds: [0]\ncrowd_sizes: [0]\n"
