@@ -10,7 +10,7 @@ Uses the default capture (robot-lab, 320x240, ground-truth poses) and a scene ch
 Measures, with the same renderer the stage uses (marching + occupancy grid):
 
 1. held-out capture views (``nsim render --poses``, ``frames=heldout``): PSNR / SSIM against
-   the captured images, depth AbsRel (``nsim.metrics.depth_accuracy``, see ``abs_rel``) of the median depth
+   the captured images, depth AbsRel (``nsim.metrics.depth``, see ``abs_rel``) of the median depth
    against the capture's z-depth, beside
    train-scene's own held-out PSNR (``eval.json``; the proposal renderer);
 2. LiDAR: Spot's VLP-16-like LiDAR along the simulated ``spot_run``, no noise, against the
@@ -89,11 +89,11 @@ SPOT = configs_dir() / "robots" / "spot.yaml"
 
 
 def abs_rel(pred: np.ndarray, gt: np.ndarray) -> float:
-    """AbsRel of ``nsim.metrics.depth_accuracy`` per view (``view_abs_rel``, its default ``DepthConfig``: ground truth
+    """AbsRel of ``nsim.metrics.depth`` per view (``view_abs_rel``, its default ``DepthConfig``: ground truth
     within 1 mm..10 m, predictions clamped into that range, so a rendered ``inf`` counts as 10 m) over the
     pixels whose prediction is a number (NaN: no ray, or nearer than the camera's minimum depth); NaN if
     none counts. The held-out scores of ``nsim train-scene`` (eval.json) are the same metric."""
-    from nsim.metrics.depth_accuracy import view_abs_rel
+    from nsim.metrics.depth import view_abs_rel
 
     return view_abs_rel(pred, gt)
 

@@ -17,7 +17,7 @@ Measures, on this machine:
    grid images (the grid must not change the image).
 
 Depth AbsRel is reported for the *median* depth (the headline) and the normalised expected
-depth, as z-depth against the capture's EXR depth (``nsim.metrics.depth_accuracy.abs_rel``: ground truth
+depth, as z-depth against the capture's EXR depth (``nsim.metrics.depth.abs_rel``: ground truth
 in [1 mm, 10 m], the prediction clamped into that range). Prints a table, writes a PNG of the curves
 (``--out``, default ``bench/out/train_scene.png``) and ends with one JSON object on the last line.
 """
@@ -40,7 +40,7 @@ import torch  # noqa: E402
 
 from nsim.config import from_dict, load_config  # noqa: E402
 from nsim.context import RunContext  # noqa: E402
-from nsim.metrics.depth_accuracy import abs_rel  # noqa: E402
+from nsim.metrics.depth import abs_rel  # noqa: E402
 from nsim.metrics.image import psnr  # noqa: E402
 from nsim.stages import capture  # noqa: E402
 from nsim.train.loop import spread  # noqa: E402

@@ -147,7 +147,7 @@ class SceneSensors:
     def render(self, name: str, body_to_world: np.ndarray) -> dict[str, np.ndarray]:
         """Sensor ``name`` at ``body_to_world (4, 4)`` (body: x forward, y left, z up), as described above."""
         from nsim.rendering.renderer import render_camera, render_lidar
-        from nsim.sensors.depth import apply_depth_model
+        from nsim.sensors.depth_model import apply_depth_model
         from nsim.sensors.rig import CameraSensor
 
         cfg = self.cfg

@@ -9,7 +9,7 @@ from nsim.config import param, param_from
 from nsim.sfm.options import SfmOptions
 
 if TYPE_CHECKING:
-    from nsim.metrics.depth_accuracy import DepthConfig
+    from nsim.metrics.depth import DepthConfig
 
 TABLES = ("scenes", "spot-rgb", "spot-depth", "lidar", "slam", "detection")
 
@@ -57,7 +57,7 @@ class Config:
     detection: DetectionConfig = DetectionConfig()
 
     def depth_config(self) -> DepthConfig:
-        """The depth metrics' settings (``nsim.metrics.depth_accuracy``): valid range and median scaling."""
-        from nsim.metrics.depth_accuracy import DepthConfig
+        """The depth metrics' settings (``nsim.metrics.depth``): valid range and median scaling."""
+        from nsim.metrics.depth import DepthConfig
 
         return DepthConfig(self.depth_min_m, self.depth_max_m, self.median_scaling)

@@ -16,7 +16,7 @@ robot's recording) for its pairs, and computes only metrics (``nsim.metrics``) a
     correction (``nsim.metrics.colour``: a 3x4 least-squares map from simulated to real colours,
     fitted on the camera's scored frames), columns ``PSNR cc``, ``SSIM cc``, ``LPIPS cc``.
 ``spot-depth`` (Table II)
-    Per depth camera: AbsRel, SqRel, RMSE, logRMSE, delta thresholds (``nsim.metrics.depth_accuracy``).
+    Per depth camera: AbsRel, SqRel, RMSE, logRMSE, delta thresholds (``nsim.metrics.depth``).
 ``lidar``
     Per LiDAR, point for point: range error median / mean / p95 and bias over the points both
     return (pooled over frames), Chamfer distance (mean over frames, sensor frame), hit agreement

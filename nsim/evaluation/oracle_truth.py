@@ -40,7 +40,7 @@ TRAJECTORY_HOW = "nsim render --trajectory RUN --rig nsim/configs/robots/spot.ya
 
 def sensor_depth_gt(sensor, depth_range_m: np.ndarray) -> np.ndarray:
     """The sensor's exact depth for the oracle's ray ranges: its depth kind and valid range, no noise."""
-    from nsim.sensors.depth import apply_depth_model
+    from nsim.sensors.depth_model import apply_depth_model
 
     exact = dataclasses.replace(sensor.depth, noise_abs_std_m=0.0, noise_rel_std=0.0, quantization_m=0.0)
     rng = np.nan_to_num(np.asarray(depth_range_m, dtype=np.float64), nan=np.inf)

@@ -15,7 +15,7 @@ file name of both sides. Each rendered frame is checked against the recording: i
 recorded, its index was kept, its stamp is the recorded one, and both files exist.
 
 Real readings: the recorded images (8-bit or 16-bit, grey replicated to three channels; 8-bit
-values), depth images on the real sensor's valid pixels (finite, > 0: ``nsim.metrics.depth_accuracy``'s
+values), depth images on the real sensor's valid pixels (finite, > 0: ``nsim.metrics.depth``'s
 valid range applies on top; simulated NaN at such a pixel is left out and counted), and LiDAR
 points (range = |XYZ|; a point with a non-finite coordinate is no return). The SLAM ground truth
 is the camera's pose at each frame's odometry time (``odom_time_ns``) on the registration's
@@ -215,7 +215,7 @@ class RecordingTruth(GroundTruth):
             yield SensorFrames(st.render, st.name, rows, _extrinsic(st))
 
     def depth_frames(self) -> Iterator[SensorFrames]:
-        from nsim.metrics.depth_accuracy import valid_depth_mask
+        from nsim.metrics.depth import valid_depth_mask
 
         self._no_people()
         depth_cfg = self.cfg.depth_config()

@@ -13,7 +13,7 @@ copied, elsewhere. Bad input raises ``nsim.errors.InputError`` (images: floating
 ``LpipsUnavailable``. ``slam`` imports pycolmap only when SLAM runs.
 """
 
-from nsim.metrics.depth_accuracy import (
+from nsim.metrics.depth import (
     DepthConfig,
     DepthErrors,
     DepthMetrics,

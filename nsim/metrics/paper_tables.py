@@ -6,7 +6,7 @@ typo never drops a value silently):
 * ``ImageRecord(group, frame, psnr_db, ssim, lpips)``: one rendered frame against its ground truth;
   ``group`` is the environment (``scenes``) or the Spot camera (``spot-rgb``). ``lpips`` may be
   ``NotAvailable(reason)`` (no weights) or None (not computed).
-* ``DepthRecord(group, frame, median_scaled, abs_rel=..., ...)``: the ``nsim.metrics.depth_accuracy`` errors
+* ``DepthRecord(group, frame, median_scaled, abs_rel=..., ...)``: the ``nsim.metrics.depth`` errors
   (``DepthErrors``) of one depth frame (``DepthRecord.from_metrics``).
 * ``SlamRecord(sequence, ate_real_m, ate_sim_m, registered_real, registered_sim)``: one sequence
   (e.g. one Spot camera) of the SLAM experiment (``SlamComparison.record``).
@@ -24,7 +24,7 @@ Builders (``TABLE_BUILDERS`` by the names ``nsim evaluate --table`` uses): ``sce
 ``spot_rgb_table``, ``spot_depth_table``, ``slam_table``, ``detection_table``, each returning a
 ``nsim.metrics.results_table.Table``. Plots (matplotlib, Agg canvas, no pyplot state), each written
 atomically as a PNG and returning its path: ``plot_per_frame``, ``plot_bars``, ``plot_depth_error_map``
-(of ``nsim.metrics.depth_accuracy.depth_error_map``).
+(of ``nsim.metrics.depth.depth_error_map``).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from nsim.errors import InputError
-from nsim.metrics.depth_accuracy import DepthConfig, DepthErrors, DepthMetrics, depth_error_map, depth_metrics
+from nsim.metrics.depth import DepthConfig, DepthErrors, DepthMetrics, depth_error_map, depth_metrics
 from nsim.metrics.results_table import Column, NotAvailable, Table
 
 # --------------------------------------------------------------------------------------
@@ -63,7 +63,7 @@ class ImageRecord:
 @dataclass(frozen=True)
 class DepthRecord(DepthErrors):
     """Depth errors of one frame: ``group``, ``frame``, ``median_scaled`` and, by keyword, the fields of
-    ``nsim.metrics.depth_accuracy.DepthErrors`` (``abs_rel``, ..., ``delta_1_25_3``).
+    ``nsim.metrics.depth.DepthErrors`` (``abs_rel``, ..., ``delta_1_25_3``).
     """
 
     group: str

@@ -292,7 +292,7 @@ class ShardRenderer:
 def _stream_sensor(stream: RecordedStream):
     """A recorded camera or depth stream as the rig's ``CameraSensor`` (its rays, grey conversion and
     z-depth are the rig's); None for a LiDAR stream (its rays are its recorded points)."""
-    from nsim.sensors.depth import DepthConfig
+    from nsim.sensors.depth_model import DepthConfig
     from nsim.sensors.rig import CameraSensor
 
     if stream.kind == "lidar":

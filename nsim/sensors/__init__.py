@@ -6,7 +6,7 @@
         origins, dirs = sensor.rays(body_to_world)   # (N, 3) each, row-major over sensor.ray_shape
 """
 
-from nsim.sensors.depth import DepthConfig, apply_depth_model, range_to_z_depth, z_depth_to_range
+from nsim.sensors.depth_model import DepthConfig, apply_depth_model, range_to_z_depth, z_depth_to_range
 from nsim.sensors.lidar import LidarConfig, beam_azimuths_rad, beam_directions, beam_elevations_deg
 from nsim.sensors.rig import (
     CameraSensor,

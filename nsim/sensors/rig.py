@@ -37,7 +37,7 @@ as an offset in the link's frame.
 ``height`` and one of: ``preset: spot_fisheye`` (``Camera.fisheye_spot_like``), ``hfov_deg``
 (a centred PINHOLE, ``Camera.pinhole_from_fov``), or ``fx`` (``fy`` defaults to ``fx``, ``cx, cy``
 to the image centre, OpenCV pixel convention) with ``dist`` as ``nsim.geometry.Camera`` takes it.
-A depth block is ``nsim.sensors.depth.DepthConfig``; a lidar block is :class:`LidarSpec`.
+A depth block is ``nsim.sensors.depth_model.DepthConfig``; a lidar block is :class:`LidarSpec`.
 
 Every error is one :class:`~nsim.errors.ConfigError` line naming the file, the line and the
 sensor: ``spot.yaml:14: sensor 'frontleft': mount.quat_wxyz: norm 1.2, expected a unit quaternion``.
@@ -64,7 +64,7 @@ from nsim.config import from_dict, param, parse_yaml, read_text_file, to_dict
 from nsim.errors import ConfigError, NsimError
 from nsim.geometry.cameras import MODELS, Camera, dirs_to_world
 from nsim.geometry.transforms import is_rotation, make_se3, matrix_from_quat_wxyz
-from nsim.sensors.depth import DepthConfig, apply_depth_model, range_to_z_depth
+from nsim.sensors.depth_model import DepthConfig, apply_depth_model, range_to_z_depth
 from nsim.sensors.lidar import BeamPattern, LidarConfig
 from nsim.sensors.urdf import Urdf, load_urdf, rpy_to_matrix
 

@@ -71,7 +71,7 @@ STAGE = "train_scene"
 # 7: held-out appearance codes fitted together (the same fits, one batch), the walkable map skips the
 #    occupancy grid's empty cells (the same map), a scene of arbitrary scale gets no walkable map, and
 #    the held-out comparisons carry a label strip (render | ground truth)
-# 8: eval.json's depth AbsRel is nsim.metrics.depth_accuracy's (ground truth within its bounds, predictions clamped)
+# 8: eval.json's depth AbsRel is nsim.metrics.depth's (ground truth within its bounds, predictions clamped)
 VERSION = 8
 
 log = logging.getLogger(__name__)

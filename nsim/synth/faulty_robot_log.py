@@ -31,7 +31,7 @@ cameras (per camera, ``camera_faults``)
     JPEG, as gray drivers write it). ``jpeg_quality`` None: raw sensor_msgs/Image on
     ``/<camera>/image``.
 depth (per depth-emitting camera, ``depth_faults``)
-    the rig's depth model (``nsim.sensors.depth.apply_depth_model``: kind, maximum range,
+    the rig's depth model (``nsim.sensors.depth_model.apply_depth_model``: kind, maximum range,
     quantisation) with the faults' noise and a minimum range of ``max(rig min_m,
     depth_min_range_m)`` (nearer -> NaN), then holes: ``depth_hole_fraction`` of the pixels, in
     blobs of about ``depth_hole_size_px``, set to NaN (``depth_holes``).
@@ -72,7 +72,7 @@ from nsim.config import from_dict, param, to_dict
 from nsim.errors import InputError
 from nsim.geometry.transforms import invert_se3, is_rotation, make_se3
 from nsim.io.canonical import canonical_floats, round_decimals
-from nsim.sensors.depth import DepthConfig, apply_depth_model
+from nsim.sensors.depth_model import DepthConfig, apply_depth_model
 from nsim.sensors.rig import CameraSensor, LidarSensor, Rig
 from nsim.synth.phone import PhoneConfig, develop, encode_jpeg, smooth_drift
 from nsim.synth.room import RoomSpec

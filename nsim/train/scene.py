@@ -119,7 +119,7 @@ def finest_hash_resolution(data: SceneData, aabb, contract: bool,
 def z_depth_to_range(depth_z: Tensor, dirs_cam_z: Tensor) -> Tensor:
     """Range along the unit ray ``z / d_z`` from z-depth ``(R,)`` and the ray's camera-axes direction's
     z ``(R,)`` (``nsim.volume.rays.camera_dirs``); 0 where there is no depth (``z <= 0``) or the ray
-    does not look forward (``d_z <= 1e-6``). The torch twin of ``nsim.sensors.depth.z_depth_to_range``."""
+    does not look forward (``d_z <= 1e-6``). The torch twin of ``nsim.sensors.depth_model.z_depth_to_range``."""
     ok = (depth_z > 0) & (dirs_cam_z > 1e-6)
     return torch.where(ok, depth_z / torch.where(ok, dirs_cam_z, 1.0), 0.0)
 

@@ -49,7 +49,7 @@ from torch import Tensor
 from nsim.config import param
 from nsim.fields.encodings import spherical_harmonics
 from nsim.geometry.cameras import dirs_to_world
-from nsim.metrics.depth_accuracy import DepthConfig
+from nsim.metrics.depth import DepthConfig
 from nsim.rendering.model import SceneModel
 from nsim.train.scene_data import SceneData, image_mean_rgb
 from nsim.volume.rays import make_rays
@@ -333,9 +333,9 @@ def score_view(model: SceneModel, view: ViewRays, gt_u8: np.ndarray, gt_depth: n
     scores (these need ``generator`` for the fit's pixels, or the fitted ``code (A,)`` itself:
     :func:`score_views` fits many views' codes at once). ``on_render(rgb)``: called with the
     mean-embedding render (to save it) before it is dropped. Depth AbsRel (with ``gt_depth``) is
-    ``nsim.metrics.depth_accuracy``'s, per view (``view_abs_rel``), with ``depth_cfg``'s bounds in the scene's units
+    ``nsim.metrics.depth``'s, per view (``view_abs_rel``), with ``depth_cfg``'s bounds in the scene's units
     (default: the metric's own, in metres)."""
-    from nsim.metrics.depth_accuracy import view_abs_rel
+    from nsim.metrics.depth import view_abs_rel
     from nsim.metrics.image import psnr
 
     device = model.aabb.device
@@ -457,7 +457,7 @@ def protocol(cfg: EvalConfig, seed_note: str) -> dict[str, str]:
                                              f"{cfg.fit_steps} full-batch Adam steps at lr {cfg.fit_lr:g} from the mean "
                                              "embedding, only the embedding trainable), scored on its right half"),
         "psnr_half_mean_embedding": "the same right half rendered with the mean embedding",
-        "abs_rel_expected, abs_rel_median": ("z-depth AbsRel (nsim.metrics.depth_accuracy) against the capture's depth "
+        "abs_rel_expected, abs_rel_median": ("z-depth AbsRel (nsim.metrics.depth) against the capture's depth "
                                              "(nearest pixel at the scored size): ground truth in "
                                              f"[{depth.min_depth_m:g}, {depth.max_depth_m:g}] m, predictions "
                                              "clamped into that range (for a scene of arbitrary scale, the same "

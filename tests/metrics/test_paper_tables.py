@@ -9,7 +9,7 @@ import pytest
 
 from nsim.errors import InputError
 from nsim.io.images import read_image
-from nsim.metrics.depth_accuracy import DepthConfig, depth_metrics
+from nsim.metrics.depth import DepthConfig, depth_metrics
 from nsim.metrics.paper_tables import (
     TABLE_BUILDERS,
     DepthRecord,

@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from nsim.config import configs_dir
-from nsim.sensors.depth import apply_depth_model
+from nsim.sensors.depth_model import apply_depth_model
 from nsim.sensors.rig import CameraSensor, LidarSensor, load_rig
 
 

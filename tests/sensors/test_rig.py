@@ -12,7 +12,7 @@ import yaml
 from nsim.errors import ConfigError, NsimError
 from nsim.geometry import Camera, is_rotation, make_se3
 from nsim.sensors import CameraSensor, DepthConfig, LidarConfig, LidarSensor, Rig, beam_directions
-from nsim.sensors.depth import apply_depth_model, range_to_z_depth, z_depth_to_range
+from nsim.sensors.depth_model import apply_depth_model, range_to_z_depth, z_depth_to_range
 from nsim.sensors.rig import LINK_TO_OPTICAL
 
 ROBOTS = Path(__file__).resolve().parents[2] / "nsim" / "configs" / "robots"

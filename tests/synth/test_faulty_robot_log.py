@@ -246,7 +246,7 @@ def test_depth_noise_has_the_configured_std(small_rig):
     r = np.full(s.ray_shape, 2.0)
     clean = depth_faults(r, s, NONE, np.random.default_rng(0))
     noisy = depth_faults(r, s, _faults(depth_noise_abs_std_m=0.01, depth_noise_rel_std=0.005), np.random.default_rng(4))
-    expected = 0.01 + 0.005 * clean  # nsim.sensors.depth: std = abs + rel * depth
+    expected = 0.01 + 0.005 * clean  # nsim.sensors.depth_model: std = abs + rel * depth
     z = (noisy - clean) / expected
     assert z.std() == pytest.approx(1.0, rel=0.05)
     assert abs(z.mean()) < 0.05
@@ -442,7 +442,7 @@ def test_a_gray_camera_writes_a_one_component_jpeg():
 def test_depth_noise_alone_stays_below_the_agreement_floor(room, rig):
     """paper.AGREEMENT_TOLERANCE's depth floor is the AbsRel the log's default depth noise adds by itself: a perfect
     render (the oracle's exact depth) scored against the noisy recording, over Spot's depth views of the walk loop."""
-    from nsim.metrics.depth_accuracy import abs_rel
+    from nsim.metrics.depth import abs_rel
     from tests.test_paper_recording import load_paper
 
     paper = load_paper()

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from nsim.errors import InputError
-from nsim.sensors import depth as sensor_depth
+from nsim.sensors import depth_model as sensor_depth
 from nsim.train.scene import SceneData, SceneTrainer, _step_seed, image_depth_loss, z_depth_to_range
 from nsim.train.scene_data import resize_depth
 from tests.train.test_scene import micro_cfg
@@ -174,7 +174,7 @@ def test_z_depth_to_range_against_a_plane(tiny_capture_dir, tiny_data, tmp_path)
     c2w = torch.as_tensor(data.cam_to_world, dtype=torch.float32)[img]
     z_cam = torch.einsum("rk,rk->r", end - c2w[:, :3, 3], c2w[:, :3, 2])
     np.testing.assert_allclose(z_cam[ok].numpy(), 2.0, atol=1e-4)
-    # the torch conversion and the numpy one (nsim.sensors.depth) agree; no depth / backward rays: 0 (NaN there)
+    # the torch conversion and the numpy one (nsim.sensors.depth_model) agree; no depth / backward rays: 0 (NaN there)
     z = torch.tensor([2.0, 0.0, 3.0, 1.5])
     dz = torch.tensor([0.8, 0.9, -0.1, 1.0])
     want = np.nan_to_num(sensor_depth.z_depth_to_range(z.numpy(), dz.numpy()), nan=0.0)

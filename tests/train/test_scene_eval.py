@@ -134,11 +134,11 @@ def test_views_fitted_together_get_their_separate_fits_codes(trained):
 
 
 def test_view_abs_rel_scores_what_a_view_has():
-    """The held-out views' AbsRel (nsim.metrics.depth_accuracy.view_abs_rel): the metric's own rule (ground truth in
+    """The held-out views' AbsRel (nsim.metrics.depth.view_abs_rel): the metric's own rule (ground truth in
     [1 mm, 10 m], predictions clamped there), pixels without a rendered depth left out, NaN for a view
     with nothing to score; ``DepthConfig.in_units``: the same bounds in a scene's own units."""
     from nsim.errors import InputError
-    from nsim.metrics.depth_accuracy import DepthConfig, abs_rel, view_abs_rel
+    from nsim.metrics.depth import DepthConfig, abs_rel, view_abs_rel
 
     gt = np.array([[1.0, 2.0], [4.0, 20.0]])  # 20 m: beyond the bound, never scored
     pred = np.array([[1.1, np.nan], [5.0, 30.0]])  # NaN: nothing rendered there
@@ -158,9 +158,9 @@ def test_view_abs_rel_scores_what_a_view_has():
 
 
 def test_held_out_depth_abs_rel_is_the_depth_metric(trained):
-    """score_view's AbsRel is nsim.metrics.depth_accuracy's: ground truth beyond its 10 m bound does not count
+    """score_view's AbsRel is nsim.metrics.depth's: ground truth beyond its 10 m bound does not count
     (the rule the trainer once had of its own, any positive ground truth, would count it)."""
-    from nsim.metrics.depth_accuracy import DepthConfig, abs_rel
+    from nsim.metrics.depth import DepthConfig, abs_rel
     from nsim.train.scene_eval import score_view
 
     i = int(trained.eval_ids[1])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nsim.errors import InputError
-from nsim.metrics.depth_accuracy import (
+from nsim.metrics.depth import (
     DepthConfig,
     abs_rel,
     depth_error_map,
