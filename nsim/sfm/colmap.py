@@ -37,18 +37,16 @@ closures stay and then correct that drift in the final mapping. The check costs 
 mapping of the near pairs (phase ``far_pair_check``).
 
 Determinism. Every RANSAC and the mapper get ``options.seed``; with
-``options.deterministic`` (the default) mapping, bundle adjustment and loop retrieval run on
-one thread, because Ceres' multi-threaded reductions are not bit-for-bit repeatable. Feature
-extraction and matching stay multi-threaded, with two guards found by experiment: images are
-imported before extraction (extraction alone numbers them in the order its threads finish,
-and the mapper's choices depend on the ids), and sequential pairs are generated first and
-matched as an explicit list (``match_sequential`` with loop detection and several threads
-now and then drops a pair). The same images and options then give the same poses bit for bit.
-Those are the terms of the promise: the same images and options in a fresh process (a rerun
-of ``nsim reconstruct``). Once, in CI, in a process that had run most of the test suite first,
-one of two back-to-back runs in that process placed the cameras up to 2.4 mm from the other
-(rotations identical bit for bit); 30+ repeats here, fresh, back-to-back, with other load and with
-different heap histories, never differed, and the cause is not known.
+``options.deterministic`` (the default) matching with its two-view verification, mapping, bundle
+adjustment and loop retrieval run on one thread, because their multi-threaded forms are not
+bit-for-bit repeatable (Ceres' reductions; matching and verification: on the tiny demo's 100
+frames at 160x120 three reruns on two cores gave three different models, up to 4 cm apart in
+position and 0.15 px in focal length, and with one matching thread every rerun the same bytes,
+no slower on two cores). Feature extraction stays multi-threaded, with one guard: images are
+imported before extraction (extraction alone numbers them in the order its threads finish, and
+the mapper's choices depend on the ids). Sequential pairs are generated first and matched as an
+explicit list (``match_sequential`` with loop detection and several threads now and then drops a
+pair). The same images and options then give the same poses bit for bit.
 
 Import order: ``cv2`` must be imported before ``pycolmap``. With pycolmap 4.2.1 and
 opencv-contrib-python-headless 5.0 loaded the other way round, ``cv2.imencode('.png')`` aborts
@@ -325,9 +323,15 @@ def _build_vocabulary(db_path: Path, out_path: Path, seed: int, deterministic: b
     return out_path
 
 
+def _matching_threads(options: SfmOptions) -> int:
+    """Threads for matching and two-view verification: one when ``deterministic`` (their threads' order shows in
+    the result), else ``num_threads``."""
+    return 1 if options.deterministic else options.num_threads
+
+
 def _match(db_path: Path, work_dir: Path, n_images: int, options: SfmOptions, device: pycolmap.Device) -> None:
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = options.num_threads
+    matching.num_threads = _matching_threads(options)
     matching.use_gpu = device == pycolmap.Device.cuda
     verification = _two_view_options(options.seed)
     if options.matcher == "exhaustive":
@@ -748,7 +752,8 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
         return make
 
     guesses: list[float | None] = [None] if known_camera is not None else list(options.hfov_guesses)
-    _set_cameras(db_path, camera_for(guesses[0]), reverify=False, seed=options.seed, num_threads=options.num_threads)
+    _set_cameras(db_path, camera_for(guesses[0]), reverify=False, seed=options.seed,
+                 num_threads=_matching_threads(options))
     wall["features"] = time.perf_counter() - t
     report("features", n, n)
 
@@ -777,7 +782,7 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
             # Perspective pairs were verified without a focal prior: only fisheye needs re-verifying.
             reverified = model in FISHEYE_MODELS
             _set_cameras(db_path, camera_for(guess), reverify=reverified, seed=options.seed,
-                         num_threads=options.num_threads)
+                         num_threads=_matching_threads(options))
         if check_far and reverified:
             t_check = time.perf_counter()
             report("far_pair_check", 0, 1)

@@ -39,7 +39,7 @@ class SfmOptions:
         ``loop_detection``; also enables the pose-jump check), "exhaustive" for small or
         unordered sets. max_features: SIFT features per image.
     device: "cpu" or "cuda" (SIFT on the GPU when pycolmap has CUDA, else a warning and CPU).
-    num_threads: extraction and matching threads (-1: all cores). seed / deterministic: see
+    num_threads: extraction threads, and matching threads unless deterministic (-1: all cores). seed / deterministic: see
         the ``nsim.sfm.colmap`` docstring. min_registered_fraction: fewer registered images is an
         InputError (and fewer than two always). retry_below_fraction: map again with the next focal
         guess below this.
@@ -65,9 +65,9 @@ class SfmOptions:
     loop_detection: bool = param(True, help="sequential matching: add retrieval-based loop-closure pairs")
     max_features: int = param(8192, ge=64, help="SIFT features per image")
     device: str = param("cpu", choices=DEVICES, help="where SIFT runs (cuda: when pycolmap has CUDA)")
-    num_threads: int = param(-1, help="extraction and matching threads (-1: all cores)")
+    num_threads: int = param(-1, help="extraction threads, and matching threads unless deterministic (-1: all cores)")
     seed: int = 0
-    deterministic: bool = param(True, help="mapping and bundle adjustment on one thread (bit-for-bit repeatable)")
+    deterministic: bool = param(True, help="matching, mapping and bundle adjustment on one thread (bit-for-bit repeatable)")
     min_registered_fraction: float = param(0.5, ge=0.0, le=1.0,
                                            help="fewer registered images (or fewer than two): SfM failed")
     retry_below_fraction: float = param(0.95, ge=0.0, le=1.0,

@@ -193,12 +193,8 @@ np.savez(work / "out.npz", names=np.array(r.registered_names), c2w=np.stack([r.c
 
 
 def test_same_input_same_poses(pinhole_capture, tmp_path):
-    """Two reruns, each in a fresh process (as ``nsim reconstruct`` is rerun), agree bit for bit.
-
-    Fresh processes because that is the promise: in a long-lived process that had run most of
-    the test suite, one of two back-to-back runs once came out 2 mm apart (CI, not reproduced
-    here in 30+ tries); see the Determinism paragraph of ``nsim.sfm.colmap``.
-    """
+    """Two reruns, each in a fresh process (as ``nsim reconstruct`` is rerun), agree bit for bit (matching on
+    one thread: see the Determinism paragraph of ``nsim.sfm.colmap``)."""
     import subprocess
     import sys
 
