@@ -5,7 +5,7 @@
     python scripts/demo_ids.py --workspace W --check    # exit 1 naming each ref that differs
 
 W is a workspace made by ``python pipelines/demo.py --preset tiny --workspace W``. The file holds, per demo ref
-whose stage is bit-stable (``BIT_STABLE`` in ``nsim/stages/<stage>.py``), the artifact id and the digest of its
+whose stage is bit-stable (``BIT_STABLE`` in ``nsim/stages/__init__.py``), the artifact id and the digest of its
 files alone (``content``), with the code fingerprint (nsim, torch, numpy, pycolmap versions) the ids were made
 under: ids also cover that fingerprint, the content digests do not. ``tests/test_demo.py`` checks a fresh tiny
 demo against it, so a change that breaks cross-machine reproducibility fails where the developer sees it.

@@ -17,7 +17,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 def neighbour_pairs(position_m: np.ndarray, cutoff_m: float) -> np.ndarray:
@@ -29,6 +28,8 @@ def neighbour_pairs(position_m: np.ndarray, cutoff_m: float) -> np.ndarray:
     n = len(position_m)
     if n < 2 or cutoff_m <= 0.0:
         return np.zeros((0, 2), dtype=np.int64)
+    from scipy.spatial import cKDTree  # scipy on use: a command failing on its arguments starts fast
+
     pairs = cKDTree(position_m).query_pairs(float(cutoff_m), output_type="ndarray").astype(np.int64)
     if len(pairs) == 0:
         return np.zeros((0, 2), dtype=np.int64)

@@ -39,12 +39,17 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.polynomial.polynomial as P
-import torch
 
-Array = np.ndarray | torch.Tensor
+from nsim.geometry.array_kind import is_tensor, namespace, no_grad
+
+if TYPE_CHECKING:
+    import torch
+
+    Array = np.ndarray | torch.Tensor
 
 MODELS = ("PINHOLE", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE", "EQUIRECTANGULAR")
 #: The models with OpenCV's radial-tangential distortion of ``(x/z, y/z)`` (plain and rational).
@@ -60,13 +65,15 @@ _Z_MIN = 1e-12  # points with z <= this are "behind" a pinhole/OpenCV camera
 
 
 def _namespace(x: Array):
-    return torch if isinstance(x, torch.Tensor) else np
+    return namespace(x)
 
 
 def _as_float(x, name: str, tail: tuple[int, ...]) -> Array:
     """Tensors stay tensors (ints become the default float dtype), the rest floating numpy; checks ``(..., *tail)``."""
-    if isinstance(x, torch.Tensor):
+    if is_tensor(x):
         if not x.is_floating_point():
+            import torch
+
             x = x.to(torch.get_default_dtype())
     else:
         x = np.asarray(x)
@@ -78,7 +85,7 @@ def _as_float(x, name: str, tail: tuple[int, ...]) -> Array:
 
 
 def _detach(x: Array) -> Array:
-    return x.detach() if isinstance(x, torch.Tensor) else x
+    return x.detach() if is_tensor(x) else x
 
 
 def _first_positive_root(coeffs_low_to_high) -> float:
@@ -102,7 +109,9 @@ def fill_invalid_dirs(dirs_cam: Array) -> tuple[Array, Array]:
 
     Numpy or torch (same kind, dtype and device back); the input is not modified.
     """
-    if isinstance(dirs_cam, torch.Tensor):
+    if is_tensor(dirs_cam):
+        import torch
+
         valid = torch.isfinite(dirs_cam).all(-1)
         fwd = torch.tensor(FORWARD_DIR, dtype=dirs_cam.dtype, device=dirs_cam.device)
         return torch.where(valid[..., None], dirs_cam, fwd), valid
@@ -119,14 +128,14 @@ def dirs_to_world(dirs_cam: Array, cam_to_world: Array, *, normalize: bool = Tru
     translation) and directions ``(R, 3)``, re-normalised to unit length with ``normalize``
     (a pose refined by a learnt correction may not be exactly rigid).
     """
-    torch_in = isinstance(dirs_cam, torch.Tensor)
+    xp = namespace(dirs_cam)
     if cam_to_world.ndim == 2:
         dirs = dirs_cam @ cam_to_world[:3, :3].T
     else:
-        dirs = (torch if torch_in else np).einsum("rij,rj->ri", cam_to_world[:, :3, :3], dirs_cam)
-    if torch_in:
+        dirs = xp.einsum("rij,rj->ri", cam_to_world[:, :3, :3], dirs_cam)
+    if xp is not np:
         if normalize:
-            dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+            dirs = dirs / xp.linalg.vector_norm(dirs, dim=-1, keepdim=True)
         return cam_to_world[..., :3, 3].expand_as(dirs), dirs
     if normalize:
         dirs = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
@@ -369,7 +378,9 @@ class Camera:
 
         Numpy float64 unless ``like`` is a tensor, whose dtype (floating, else the default) and device are then used.
         """
-        if isinstance(like, torch.Tensor):
+        if is_tensor(like):
+            import torch
+
             dtype = like.dtype if like.is_floating_point() else torch.get_default_dtype()
             u = torch.arange(self.width, dtype=dtype, device=like.device)
             v = torch.arange(self.height, dtype=dtype, device=like.device)
@@ -406,7 +417,7 @@ class Camera:
         xp = _namespace(c2w)
         dirs = xp.einsum("...ij,hwj->...hwi", c2w[..., :3, :3], self.pixel_dirs_cam(like=c2w))
         origins = c2w[..., None, None, :3, 3]
-        if xp is torch:
+        if xp is not np:
             return origins.expand(dirs.shape).contiguous(), dirs
         return np.ascontiguousarray(np.broadcast_to(origins, dirs.shape)), dirs
 
@@ -449,7 +460,7 @@ class Camera:
         return x - (d * ex - b * ey) / det, y - (a * ey - b * ex) / det
 
     def _radtan_undistort(self, xd: Array, yd: Array) -> tuple[Array, Array]:
-        with torch.no_grad():
+        with no_grad(xd):
             x, y = _detach(xd), _detach(yd)
             for _ in range(NEWTON_ITERS):
                 x, y = self._radtan_newton_step(x, y, _detach(xd), _detach(yd))
@@ -471,7 +482,7 @@ class Camera:
         """Solve ``theta_d = theta (1 + k1 theta^2 + ...)`` for theta in ``[0, max_angle_rad]``."""
         xp = _namespace(theta_d)
         theta_max = self.max_angle_rad
-        with torch.no_grad():
+        with no_grad(theta_d):
             target = _detach(theta_d)
             theta = xp.clip(target, 0.0, theta_max)
             for _ in range(NEWTON_ITERS):

@@ -11,16 +11,21 @@ dtype out, differentiable); the rest is numpy float64.
 
 from __future__ import annotations
 
-import numpy as np
-import torch
-from scipy.spatial.transform import Rotation
+from typing import TYPE_CHECKING
 
-Array = np.ndarray | torch.Tensor
+import numpy as np
+
+from nsim.geometry.array_kind import is_tensor
+
+if TYPE_CHECKING:
+    import torch
+
+    Array = np.ndarray | torch.Tensor
 
 
 def _as_float_array(x) -> Array:
     """Tensors pass through; anything else becomes a floating numpy array."""
-    if isinstance(x, torch.Tensor):
+    if is_tensor(x):
         return x
     x = np.asarray(x)
     return x if np.issubdtype(x.dtype, np.floating) else x.astype(np.float64)
@@ -40,8 +45,10 @@ def make_se3(R: Array, t: Array) -> Array:
     R, t = _as_float_array(R), _as_float_array(t)
     _check_shape("R", R, (3, 3))
     _check_shape("t", t, (3,))
-    if isinstance(R, torch.Tensor) or isinstance(t, torch.Tensor):
-        like = R if isinstance(R, torch.Tensor) else t
+    if is_tensor(R) or is_tensor(t):
+        import torch
+
+        like = R if is_tensor(R) else t
         R, t = (torch.as_tensor(v, device=like.device) for v in (R, t))
         dtype = torch.promote_types(R.dtype, t.dtype)
         batch = torch.broadcast_shapes(R.shape[:-2], t.shape[:-1])
@@ -69,6 +76,8 @@ def quat_wxyz_from_matrix(R: Array) -> np.ndarray:
     """Unit quaternions ``(..., 4)`` wxyz with ``w >= 0`` from rotations ``R (..., 3, 3)``."""
     R = np.asarray(R, dtype=np.float64)
     _check_shape("R", R, (3, 3))
+    from scipy.spatial.transform import Rotation  # scipy on use: numpy-only callers start fast
+
     q_xyzw = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
     q = q_xyzw[:, [3, 0, 1, 2]]
     q = np.where(q[:, :1] < 0.0, -q, q)  # q and -q are the same rotation; pick w >= 0
@@ -82,6 +91,8 @@ def matrix_from_quat_wxyz(q_wxyz: Array) -> np.ndarray:
     norm = np.linalg.norm(q, axis=-1)
     if not np.all(np.isfinite(q)) or np.any(norm < 1e-12):
         raise ValueError("q_wxyz: quaternions must be finite and nonzero")
+    from scipy.spatial.transform import Rotation  # scipy on use: numpy-only callers start fast
+
     R = Rotation.from_quat(q.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix()
     return R.reshape(q.shape[:-1] + (3, 3))
 
@@ -125,7 +136,9 @@ def apply_sim3(s: float, R: Array, t: Array, points_xyz: Array) -> Array:
     """``s * R @ p + t`` for points ``(..., 3)``; ``R (3, 3)``, ``t (3,)``. Returns ``(..., 3)``."""
     points_xyz = _as_float_array(points_xyz)
     _check_shape("points_xyz", points_xyz, (3,))
-    if isinstance(points_xyz, torch.Tensor):
+    if is_tensor(points_xyz):
+        import torch
+
         R = torch.as_tensor(R, dtype=points_xyz.dtype, device=points_xyz.device)
         t = torch.as_tensor(t, dtype=points_xyz.dtype, device=points_xyz.device)
     else:
@@ -143,6 +156,8 @@ def rotation_angle_deg(R_a: Array, R_b: Array) -> np.ndarray:
     _check_shape("R_a", R_a, (3, 3))
     _check_shape("R_b", R_b, (3, 3))
     R_rel = R_a.swapaxes(-1, -2) @ R_b
+    from scipy.spatial.transform import Rotation  # scipy on use: numpy-only callers start fast
+
     angle = Rotation.from_matrix(R_rel.reshape(-1, 3, 3)).magnitude()
     return np.degrees(angle).reshape(R_rel.shape[:-2])
 
@@ -193,7 +208,7 @@ def interpolate_poses(times_s: np.ndarray, poses_se3: np.ndarray, query_s: np.nd
     Positions are linear, rotations slerped between samples; outside the samples' span the first
     or last pose is held.
     """
-    from scipy.spatial.transform import Slerp
+    from scipy.spatial.transform import Rotation, Slerp
 
     t = np.asarray(times_s, dtype=np.float64)
     q = np.clip(np.asarray(query_s, dtype=np.float64), t[0], t[-1])

@@ -80,7 +80,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an 8-bit image (PNG, JPEG, ...) as (H, W, 3) uint8 RGB.
 
     Grey images are replicated to three channels, alpha is dropped, and EXIF orientation is applied.
-    A 16-bit image is an InputError (for millimetre depth use `read_depth_png_mm`).
+    A 16-bit image is an InputError (for depth use `read_depth_png`).
     """
     path = Path(path)
     image = _decode(path, cv2.IMREAD_COLOR_RGB | cv2.IMREAD_ANYDEPTH)
@@ -128,14 +128,15 @@ def write_depth_png_mm(path: str | os.PathLike, depth_m: np.ndarray) -> Path:
     return _encode_atomic(path, np.where(valid, depth_mm, 0).astype(np.uint16))
 
 
-def read_depth_png_mm(path: str | os.PathLike) -> np.ndarray:
-    """Read a single-channel 16-bit millimetre depth PNG as (H, W) float32 metres; 0 (no depth) -> NaN."""
+def read_depth_png(path: str | os.PathLike, units_per_m: float) -> np.ndarray:
+    """Read a single-channel 16-bit depth PNG as (H, W) float32 metres; 0 (no depth) -> NaN.
+
+    units_per_m: what one metre is in the PNG's integers: 1000 for millimetres, 5000 for TUM RGB-D
+    (``nsim.io.recording_streams.DepthUnit``); never guessed here."""
     path = Path(path)
-    depth_mm = _decode(path, cv2.IMREAD_UNCHANGED)
-    if depth_mm.dtype != np.uint16 or depth_mm.ndim != 2:
-        raise InputError(
-            f"{path}: expected a single-channel 16-bit depth PNG, got {depth_mm.dtype} shape {depth_mm.shape}"
-        )
-    depth_m = depth_mm.astype(np.float32) / np.float32(1000.0)
-    depth_m[depth_mm == 0] = np.nan
+    raw = _decode(path, cv2.IMREAD_UNCHANGED)
+    if raw.dtype != np.uint16 or raw.ndim != 2:
+        raise InputError(f"{path}: expected a single-channel 16-bit depth PNG, got {raw.dtype} shape {raw.shape}")
+    depth_m = raw.astype(np.float32) / np.float32(units_per_m)
+    depth_m[raw == 0] = np.nan
     return depth_m

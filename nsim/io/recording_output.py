@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from nsim.io.recording_streams import DepthUnit, depth_unit_of
+
 log = logging.getLogger("nsim.stages.import_log")
 
 
@@ -77,6 +79,7 @@ def write_recording(out_dir: Path, rl, traj, plan: list, log_paths: list[str], i
             d = out_dir / kind / name
             d.mkdir(parents=True)
             read_one = rl.cloud if kind == "lidar" else rl.image
+            medians = []  # depth: each frame's median valid depth (m), for the plausibility check
             if len(keep) == len(s.stamps_ns):  # every frame: one streaming pass
                 source = rl.clouds(s) if kind == "lidar" else rl.images(s)
             else:  # a subset: decode only the frames kept
@@ -90,6 +93,9 @@ def write_recording(out_dir: Path, rl, traj, plan: list, log_paths: list[str], i
                         write_image(path.with_suffix(".png"), data)
                 elif kind == "depth":
                     write_depth_exr(path.with_suffix(".exr"), data, {"nsim_depth": "z-depth, metres"})
+                    valid = data[np.isfinite(data) & (data > 0)]
+                    if valid.size:
+                        medians.append(float(np.median(valid)))
                 else:
                     channels = {"X": data.xyz_m[:, 0], "Y": data.xyz_m[:, 1], "Z": data.xyz_m[:, 2]}
                     channels |= {f: v for f in ("intensity", "ring", "time") if (v := getattr(data, f)) is not None}
@@ -112,6 +118,8 @@ def write_recording(out_dir: Path, rl, traj, plan: list, log_paths: list[str], i
                 entry["fields"] = list(s.fields)
             else:
                 entry |= {"camera": s.camera.to_dict(), "encoding": s.encoding, "info_topic": s.info_topic}
+            if kind == "depth":
+                entry |= depth_record(f"{kind}/{name}", depth_unit_of(s), medians)
             if len(stamps) and inside.sum() < len(stamps):
                 log.warning("import-log: %s %s: %d of %d frames lie outside the trajectory (%s) by more than %g s",
                             kind, name, len(stamps) - int(inside.sum()), len(stamps), traj.source, max_gap_s)
@@ -119,6 +127,23 @@ def write_recording(out_dir: Path, rl, traj, plan: list, log_paths: list[str], i
     (out_dir / "recording.json").write_text(json.dumps(doc, indent=1) + "\n")
     write_preview(out_dir / "preview.png", out_dir, doc, traj)
     return doc
+
+
+#: A depth stream whose median valid depth lies outside this range (m) is reported: likely a wrong unit.
+PLAUSIBLE_DEPTH_M = (0.1, 20.0)
+
+
+def depth_record(name: str, unit: DepthUnit, frame_medians: list[float]) -> dict[str, Any]:
+    """recording.json's depth fields of one stream: its unit (what a frame's number was in metres, and who said
+    so) and the median of its frames' median valid depths, with a warning when that is outside
+    ``PLAUSIBLE_DEPTH_M`` (a unit 5x or 1000x off lands there)."""
+    median = float(np.median(frame_medians)) if frame_medians else None
+    lo, hi = PLAUSIBLE_DEPTH_M
+    if median is not None and not lo <= median <= hi:
+        log.warning("import-log: %s: median depth %.3g m, outside %g-%g m: is the unit right? (%g m per unit: %s)",
+                    name, median, lo, hi, unit.m_per_unit, unit.source)
+    return {"depth_m_per_unit": unit.m_per_unit, "depth_unit": unit.source,
+            "median_depth_m": None if median is None else round(median, 6)}
 
 
 def write_preview(path: Path, out_dir: Path, doc: dict[str, Any], traj) -> None:

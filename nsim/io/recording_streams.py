@@ -57,6 +57,38 @@ class CameraStreamInfo:
 
 
 @dataclass(frozen=True)
+class DepthUnit:
+    """What one integer (or float) of a depth stream's frames is in metres, and who says so.
+
+    m_per_unit: metres per stored unit (16-bit PNG / 16UC1: 0.001 for millimetres, 0.0002 for TUM RGB-D's
+    1/5000 m; float frames: 1.0); source: where that comes from, in words, for the log and the recording."""
+
+    m_per_unit: float
+    source: str
+
+    @property
+    def units_per_m(self) -> float:
+        """The divisor a 16-bit frame is scaled by (1000 for millimetres, 5000 for TUM), exact in float32."""
+        return float(np.float32(1.0 / self.m_per_unit))
+
+
+#: ROS's depth encodings and their units by convention (REP 118).
+ROS_DEPTH_UNITS = {"16UC1": DepthUnit(0.001, "16UC1: millimetres (ROS REP 118)"),
+                   "32FC1": DepthUnit(1.0, "32FC1: metres (ROS REP 118)")}
+
+
+def depth_unit_of(stream: CameraStreamInfo) -> DepthUnit:
+    """The unit of a depth stream's frames: the one its reader stated (``stream.depth_unit``, a folder's), else
+    the ROS convention of its encoding."""
+    unit = getattr(stream, "depth_unit", None)
+    if unit is not None:
+        return unit
+    if stream.encoding not in ROS_DEPTH_UNITS:
+        raise ValueError(f"{stream.topic}: {stream.encoding!r} is not a depth encoding with a known unit")
+    return ROS_DEPTH_UNITS[stream.encoding]
+
+
+@dataclass(frozen=True)
 class CameraStream(CameraStreamInfo):
     """One camera (or depth camera) topic (:class:`CameraStreamInfo`). Frames are decoded on demand by
     :meth:`nsim.io.robot_log.RobotLog.image`. msgtype: the topic's message type; stamps_from_bag: how many stamps came

@@ -19,14 +19,24 @@ which makes it a ROS 2 bag)::
     cameras/<name>/                colour or grey frames: .png .jpg .jpeg .bmp .tif .tiff .webp .pgm .ppm
         camera_info.yaml           ROS camera_info YAML (below), required
         timestamps.txt | times.csv optional: the frames' stamps (below)
-    depth/<name>/                  optional: depth frames, one format per stream: .png (16-bit millimetres,
-                                   0 = no measurement), .exr (channel Z, metres) or .npy ((H, W) float, metres)
-        camera_info.yaml           the depth image's intrinsics, required
-        timestamps.txt | times.csv optional
+    depth/<name>/                  optional: depth frames, one format per stream: .png (16-bit integers in the
+                                   unit below, 0 = no measurement), .exr (channel Z, metres) or .npy ((H, W)
+                                   float, metres)
+        camera_info.yaml           the depth image's intrinsics, required; with .png frames also their unit,
+                                   ``depth_m_per_unit`` (metres per integer: 0.001 millimetres, 0.0002 TUM RGB-D)
+        timestamps.txt | times.csv | depth.txt   optional (``depth.txt``: TUM RGB-D's, which also states
+                                   the unit: 1/5000 m)
     lidar/<name>/                  optional: point clouds in the sensor's frame, .ply (vertex x y z, and
                                    intensity, ring, time when present) or .npy ((N, 3) float x y z, or a
                                    structured array with fields x, y, z and optionally intensity, ring, time)
         timestamps.txt | times.csv optional
+
+**Depth units are never guessed.** A 16-bit PNG holds integers whose unit the folder states: TUM
+RGB-D's ``depth.txt`` beside the frames (its layout: 1/5000 m) or ``depth_m_per_unit`` in the
+stream's camera_info.yaml (both: they must agree); otherwise the import stops with one line saying
+how. ``depth_scale`` is refused: RealSense calls metres per unit that, Open3D and TUM the inverse,
+and the two read each other's files 5x or 5,000,000x wrong. The unit is logged and recorded in the
+recording (``recording.json``: ``depth_m_per_unit``, ``depth_unit``).
 
 ``<name>`` is the stream's name in the recording and the sensor's name in the rig (``cameras/front``
 and ``depth/front`` share the extrinsic of sensor ``front``); it is also the stream's ``frame_id``.
@@ -89,6 +99,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import re
 from collections.abc import Iterator, Mapping
@@ -102,7 +113,7 @@ import numpy as np
 
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
-from nsim.io.recording_streams import BODY_FRAMES, CameraStreamInfo, Trajectory
+from nsim.io.recording_streams import BODY_FRAMES, CameraStreamInfo, DepthUnit, Trajectory
 from nsim.io.rosbag import RING_FIELDS, TIME_FIELDS, LidarPoints, camera_from_info, matrix_from_transform
 from nsim.io.topic_selection import check_keys
 
@@ -111,7 +122,12 @@ log = logging.getLogger(__name__)
 TRAJECTORY_FILE = "trajectory.tum"
 RIG_FILES = ("rig.yaml", "rig.urdf")
 CAMERA_INFO_FILE = "camera_info.yaml"
-TIMESTAMP_FILES = ("timestamps.txt", "times.csv")
+TIMESTAMP_FILES = ("timestamps.txt", "times.csv", "rgb.txt", "depth.txt")  # the last two: TUM RGB-D's names
+#: TUM RGB-D's depth list; beside 16-bit PNG depth it states their unit, 1/5000 m (TUM's file formats page).
+TUM_DEPTH_FILE = "depth.txt"
+TUM_DEPTH_UNIT = DepthUnit(1 / 5000, "TUM RGB-D layout (depth.txt beside the frames): 1/5000 m")
+#: camera_info.yaml's key for a 16-bit depth PNG's unit, metres per integer.
+DEPTH_UNIT_KEY = "depth_m_per_unit"
 #: Stream folders: folder -> the stream kind it holds.
 STREAM_DIRS = {"cameras": "camera", "depth": "depth", "lidar": "lidar"}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm")
@@ -424,6 +440,7 @@ class FolderCameraStream(CameraStreamInfo):
 
     files: tuple[Path, ...]
     stamps_from_bag: int = 0
+    depth_unit: DepthUnit | None = None  # depth: what the frames' numbers are (``depth_unit_of``)
 
 
 @dataclass(frozen=True)
@@ -480,14 +497,41 @@ def _npy(path: Path) -> np.ndarray:
     return array
 
 
-def read_depth_frame(path: Path) -> np.ndarray:
-    """``(H, W)`` float32 metres of a depth file (NaN: no measurement where a PNG says 0 mm)."""
+def depth_unit(folder: Path, info: Path, stated: Any, suffix: str) -> DepthUnit | None:
+    """The unit of a depth folder's frames (module docstring): ``stated`` (camera_info.yaml's
+    ``depth_m_per_unit``, or None) and TUM's ``depth.txt`` for 16-bit PNGs; metres for float frames.
+    InputError for a PNG folder that states none, a unit that is not a positive number, two that disagree,
+    or a unit stated for float frames."""
+    if stated is not None and (isinstance(stated, bool) or not isinstance(stated, int | float)
+                               or not math.isfinite(stated) or stated <= 0):
+        raise InputError(f"{info}: {DEPTH_UNIT_KEY} must be a positive number of metres per unit, got {stated!r}")
+    if suffix != ".png":
+        if stated is not None:
+            raise InputError(f"{info}: {DEPTH_UNIT_KEY} is for 16-bit PNG depth; {suffix or 'no'} frames are metres")
+        return DepthUnit(1.0, f"{suffix} frames: metres") if suffix else None
+    tum = (folder / TUM_DEPTH_FILE).is_file()
+    if stated is None:
+        if tum:
+            return TUM_DEPTH_UNIT
+        raise InputError(f"{folder}: 16-bit PNG depth without its unit: add {DEPTH_UNIT_KEY} to {info.name} (metres "
+                         f"per integer: 0.001 for millimetres, 0.0002 for TUM RGB-D), or keep TUM's {TUM_DEPTH_FILE} "
+                         "beside the frames")
+    if tum and not math.isclose(float(stated), TUM_DEPTH_UNIT.m_per_unit, rel_tol=1e-9):
+        raise InputError(f"{info}: {DEPTH_UNIT_KEY} {stated} disagrees with {TUM_DEPTH_FILE} beside the frames "
+                         f"(TUM RGB-D: {TUM_DEPTH_UNIT.m_per_unit} m per unit); keep one")
+    return DepthUnit(float(stated), f"{DEPTH_UNIT_KEY} in {info.name}")
+
+
+def read_depth_frame(path: Path, unit: DepthUnit | None) -> np.ndarray:
+    """``(H, W)`` float32 metres of a depth file (NaN: no measurement where a PNG says 0); ``unit``: a PNG's."""
     from nsim.io.exr import read_depth_exr
-    from nsim.io.images import read_depth_png_mm
+    from nsim.io.images import read_depth_png
 
     suffix = path.suffix.lower()
     if suffix == ".png":
-        return read_depth_png_mm(path)
+        if unit is None or unit.m_per_unit == 1.0:
+            raise InputError(f"{path}: 16-bit PNG depth without its unit")
+        return read_depth_png(path, unit.units_per_m)
     if suffix == ".exr":
         return read_depth_exr(path)
     array = _npy(path)
@@ -598,17 +642,29 @@ class RobotFolder:
         if not info.is_file():
             raise InputError(f"{info}: no such file; every {'depth' if depth else 'camera'} folder needs its ROS "
                              "camera_info YAML")
-        camera = read_camera_info_yaml(self._inside(info))
+        data = _yaml(self._inside(info))
+        stated = None
+        if depth and isinstance(data, Mapping):
+            data = dict(data)
+            if "depth_scale" in data:
+                raise InputError(f"{info}: depth_scale is ambiguous (RealSense: metres per unit; Open3D, TUM: units "
+                                 f"per metre); write {DEPTH_UNIT_KEY} (metres per integer: 0.001 for millimetres, "
+                                 "0.0002 for TUM RGB-D's 1/5000 m)")
+            stated = data.pop(DEPTH_UNIT_KEY, None)
+        camera = camera_from_info_yaml(data, str(info))
         files, stamps = frame_stamps(d, tuple(DEPTH_SUFFIXES) if depth else IMAGE_SUFFIXES)
         files = [self._inside(p) for p in files]
-        encoding = ""
+        encoding, unit = "", None
         if depth:
             suffixes = sorted({p.suffix.lower() for p in files})
             if len(suffixes) > 1:
                 raise InputError(f"{d}: depth frames in several formats ({', '.join(suffixes)}); keep one")
             encoding = DEPTH_SUFFIXES[suffixes[0]] if suffixes else ""
+            unit = depth_unit(d, info, stated, suffixes[0] if suffixes else "")
+            if unit is not None:
+                log.info("%s: %s depth, %g m per unit (%s)", topic, suffixes[0], unit.m_per_unit, unit.source)
         stream = FolderCameraStream(d.name, topic, f"{topic}/{CAMERA_INFO_FILE}", d.name, camera, encoding, depth,
-                                    stamps, tuple(files))
+                                    stamps, tuple(files), depth_unit=unit)
         if files:  # the first frame decodes, at the camera's size; it sets the stream's encoding
             first = self._frame_checked(stream, 0)
             if not depth:
@@ -625,7 +681,7 @@ class RobotFolder:
 
     def _frame_checked(self, stream: FolderCameraStream, i: int) -> np.ndarray:
         path = stream.files[i]
-        image = read_depth_frame(path) if stream.is_depth else read_frame(path)
+        image = read_depth_frame(path, stream.depth_unit) if stream.is_depth else read_frame(path)
         cam = stream.camera
         if image.shape[:2] != (cam.height, cam.width):
             raise InputError(f"{path}: the image is {image.shape[1]}x{image.shape[0]}, its camera_info "

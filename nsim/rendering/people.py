@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from torch import Tensor
 
     from nsim.human.nerf import HumanModel
-    from nsim.rendering.renderer import MarchConfig
+    from nsim.rendering.march_config import MarchConfig
 
 log = logging.getLogger(__name__)
 

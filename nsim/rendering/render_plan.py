@@ -31,6 +31,7 @@ import numpy as np
 
 from nsim.config import param
 from nsim.errors import InputError
+from nsim.rendering.march_config import MarchConfig
 from nsim.rendering.render_job import (
     ArtifactDir,
     Frame,
@@ -43,7 +44,6 @@ from nsim.rendering.render_job import (
     ShardJob,
     TickFrame,
 )
-from nsim.rendering.renderer import MarchConfig
 
 if TYPE_CHECKING:
     from nsim.geometry.cameras import Camera

@@ -36,8 +36,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from nsim.config import param
 from nsim.geometry.cameras import dirs_to_world, fill_invalid_dirs
+from nsim.rendering.march_config import MarchConfig
 from nsim.rendering.model import SceneModel
 from nsim.rendering.occupancy import OccupancyGrid
 from nsim.volume import quadrature
@@ -46,17 +46,6 @@ from nsim.volume.samples import RaySamples, RenderOutput
 
 METHODS = ("proposal", "march")
 AUTO = "auto"  # march with the grid when one is given, else the proposal sampler
-
-
-@dataclass(frozen=True)
-class MarchConfig:
-    """The marching renderer. step_m: sample spacing along the ray (metres)."""
-
-    step_m: float = param(0.01, gt=0.0)
-    block_steps: int = param(64, ge=1)
-    stop_transmittance: float = param(1e-4, ge=0.0, lt=1.0)
-    color_skip_weight: float = param(1e-3, ge=0.0, lt=1.0,
-                                     help="summed weight per ray whose colour may be skipped (bounds the error)")
 
 
 @dataclass

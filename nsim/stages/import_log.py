@@ -18,7 +18,9 @@ Artifact layout (kind ``recording``)::
                          (a folder's: the stream's folder, e.g. cameras/front), frame_id,
                          camera (nsim.geometry.Camera.to_dict), sensor_to_body (4 x 4), encoding,
                          the frames kept (indices into the topic) and how many lie inside the
-                         trajectory's time span (within ``max_gap_s`` of a pose stamp)
+                         trajectory's time span (within ``max_gap_s`` of a pose stamp); depth streams
+                         also their unit (depth_m_per_unit, and depth_unit: who says so) and
+                         median_depth_m (a warning when outside 0.1-20 m: a wrong unit lands there)
     trajectory.tum       body_to_odom at the trajectory's stamps (TUM: seconds, xyz, quaternion xyzw)
     trajectory_ns.npy    the same stamps as int64 nanoseconds (TUM's float seconds round them)
     <kind>/<name>/stamps_ns.npy          (N,) int64 header stamps of the frames kept
@@ -48,7 +50,9 @@ from nsim.io.recording_output import kept_frames, write_recording
 from nsim.stages.runner import cached, rerun
 
 STAGE = "import-log"
-VERSION = 2  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
+VERSION = 3  # 2: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
+# 3: each depth stream records its unit (depth_m_per_unit, depth_unit) and median depth; a folder's 16-bit PNG depth
+#    needs its unit stated (depth_m_per_unit, or TUM's depth.txt)
 KINDS = ("camera", "depth", "lidar")
 log = logging.getLogger(__name__)
 

@@ -4,7 +4,7 @@ import pytest
 
 from nsim.errors import InputError
 from nsim.io.images import (
-    read_depth_png_mm,
+    read_depth_png,
     read_image,
     to_float,
     to_uint8,
@@ -76,7 +76,7 @@ def test_depth_png_mm_roundtrip_exact(tmp_path, shape):
     depth_mm = np.random.default_rng(3).integers(0, 65536, shape, dtype=np.uint16)
     depth_m = np.where(depth_mm > 0, depth_mm / 1000.0, np.nan)
     path = write_depth_png_mm(tmp_path / "d.png", depth_m)
-    back = read_depth_png_mm(path)
+    back = read_depth_png(path, 1000.0)
     assert back.dtype == np.float32 and back.shape == shape
     np.testing.assert_array_equal(np.isnan(back), depth_mm == 0)
     np.testing.assert_array_equal(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), depth_mm)
@@ -98,7 +98,7 @@ def test_missing_file_is_input_error(tmp_path):
 
 
 @pytest.mark.parametrize("content", [b"", b"\x89PNG\r\n\x1a\n garbage", "truncated"])
-@pytest.mark.parametrize("reader", [read_image, read_depth_png_mm])
+@pytest.mark.parametrize("reader", [read_image, lambda p: read_depth_png(p, 1000.0)])
 def test_corrupt_png_is_input_error(tmp_path, content, reader):
     good = write_image(tmp_path / "good.png", np.full((16, 16, 3), 7, np.uint8))
     if content == "truncated":
@@ -115,7 +115,7 @@ def test_bit_depth_mismatch_is_input_error(tmp_path):
     with pytest.raises(InputError, match="depth.png: expected an 8-bit image"):
         read_image(depth_path)
     with pytest.raises(InputError, match="rgb.png: expected a single-channel 16-bit"):
-        read_depth_png_mm(rgb_path)
+        read_depth_png(rgb_path, 1000.0)
 
 
 @pytest.mark.parametrize(

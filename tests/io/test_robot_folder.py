@@ -45,8 +45,9 @@ def write_stamped_tum(path: Path, stamps_ns: np.ndarray, body_to_odom: np.ndarra
     path.write_text("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(rows) + "\n")
 
 
-def write_camera_info(path: Path, camera: Camera, name: str = "") -> None:
-    path.write_text(yaml.safe_dump(camera_info_yaml(camera, name), sort_keys=False))
+def write_camera_info(path: Path, camera: Camera, name: str = "", depth_m_per_unit: float | None = None) -> None:
+    data = camera_info_yaml(camera, name) | ({} if depth_m_per_unit is None else {"depth_m_per_unit": depth_m_per_unit})
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
 def export_folder(rl, out: Path, *, depth_suffix: str = ".npy", stamps_file: str | None = None) -> Path:
@@ -61,7 +62,8 @@ def export_folder(rl, out: Path, *, depth_suffix: str = ".npy", stamps_file: str
         for name, s in group.items():
             d = out / folder / name
             d.mkdir(parents=True)
-            write_camera_info(d / "camera_info.yaml", s.camera, name)
+            write_camera_info(d / "camera_info.yaml", s.camera, name,
+                              depth_m_per_unit=0.001 if folder == "depth" and depth_suffix == ".png" else None)
             sensors[name] = {"sensor_to_body": rl.sensor_to_body(s.frame_id).tolist()}
             rows = []
             for i, image in (rl.images(s)):
@@ -174,6 +176,74 @@ def test_folder_matches_bag(bag, tmp_path, stamps_file):
             assert rf.body_trajectory().source == "trajectory.tum"
             np.testing.assert_array_equal(rf.cameras["front"].stamps_ns, T0 + TICK * np.arange(4))
             assert_same_recording(rl, rf)
+
+
+def _as_tum_depth(folder: Path, stream: str = "front") -> Path:
+    """The folder's depth stream rewritten as TUM RGB-D stores depth: 16-bit PNGs at 5000 per metre, listed in a
+    ``depth.txt`` (``stamp filename`` in seconds), camera_info.yaml without a unit."""
+    import cv2
+
+    from nsim.io.robot_folder import read_depth_frame
+
+    d = folder / "depth" / stream
+    info = yaml.safe_load((d / "camera_info.yaml").read_text())
+    info.pop("depth_m_per_unit", None)
+    (d / "camera_info.yaml").write_text(yaml.safe_dump(info, sort_keys=False))
+    rows = ["# depth maps", "# file: 'rgbd_dataset_freiburg1_xyz.bag'", "# timestamp filename"]
+    for i, path in enumerate(sorted(d.glob("*.npy"), key=lambda p: int(p.stem))):
+        depth_m = read_depth_frame(path, None)
+        raw = np.where(np.isfinite(depth_m), np.round(np.nan_to_num(depth_m) * 5000.0), 0).astype(np.uint16)
+        cv2.imwrite(str(d / f"frame_{i:03d}.png"), raw)
+        rows.append(f"{int(path.stem) // 10**9}.{int(path.stem) % 10**9:09d} depth/frame_{i:03d}.png")
+        path.unlink()
+    (d / "depth.txt").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def test_tum_depth_is_metric(bag, tmp_path, caplog):
+    """TUM RGB-D's 16-bit depth is 1/5000 m (depth.txt beside it says so): read as metres, not as millimetres."""
+    with RobotLog(bag) as rl:
+        want = rl.image(rl.depth["front"], 2)
+        folder = _as_tum_depth(export_folder(rl, tmp_path / "tum"))
+    with caplog.at_level("INFO", logger="nsim.io.robot_folder"), RobotFolder(folder) as rf:
+        stream = rf.depth["front"]
+        got = rf.image(stream, 2)
+    assert stream.depth_unit.m_per_unit == pytest.approx(1 / 5000) and "depth.txt" in stream.depth_unit.source
+    assert any("0.0002 m per unit" in r.getMessage() and "TUM" in r.getMessage() for r in caplog.records)
+    np.testing.assert_array_equal(np.isnan(got), ~np.isfinite(want))
+    np.testing.assert_allclose(got[np.isfinite(got)], want[np.isfinite(want)], rtol=0, atol=1 / 10000 + 1e-6)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"drop_tum": True}, r"depth/front: 16-bit PNG depth without its unit: add depth_m_per_unit to camera_info.yaml"),
+    ({"depth_scale": 5000}, r"camera_info.yaml: depth_scale is ambiguous"),
+    ({"depth_m_per_unit": 0}, r"camera_info.yaml: depth_m_per_unit must be a positive number of metres per unit, got 0"),
+    ({"depth_m_per_unit": -0.001}, r"must be a positive number"),
+    ({"depth_m_per_unit": "mm"}, r"must be a positive number"),
+    ({"depth_m_per_unit": True}, r"must be a positive number"),
+    ({"depth_m_per_unit": 0.001}, r"depth_m_per_unit 0.001 disagrees with depth.txt"),
+])
+def test_depth_unit_errors(bag, tmp_path, change, message):
+    with RobotLog(bag) as rl:
+        folder = _as_tum_depth(export_folder(rl, tmp_path / "f"))
+    d = folder / "depth" / "front"
+    if change.pop("drop_tum", False):
+        rows = (d / "depth.txt").read_text().splitlines()[3:]
+        (d / "timestamps.txt").write_text("\n".join(rows) + "\n")
+        (d / "depth.txt").unlink()
+    info = yaml.safe_load((d / "camera_info.yaml").read_text()) | change
+    (d / "camera_info.yaml").write_text(yaml.safe_dump(info, sort_keys=False))
+    with pytest.raises(InputError, match=message):
+        RobotFolder(folder)
+
+
+def test_depth_unit_for_float_frames_is_refused(bag, tmp_path):
+    with RobotLog(bag) as rl:
+        folder = export_folder(rl, tmp_path / "exr", depth_suffix=".exr")
+    info_path = folder / "depth" / "front" / "camera_info.yaml"
+    info_path.write_text(yaml.safe_dump(yaml.safe_load(info_path.read_text()) | {"depth_m_per_unit": 0.001}))
+    with pytest.raises(InputError, match="depth_m_per_unit is for 16-bit PNG depth; .exr frames are metres"):
+        RobotFolder(folder)
 
 
 def test_depth_formats(bag, tmp_path):

@@ -158,3 +158,30 @@ def test_bad_folder_exits_2_with_one_line_and_publishes_nothing(imported, logs, 
     assert len(err.splitlines()) == 1 and words in err, err
     assert str(root) in err, err
     assert set(Store(ws).all_ids()) == before
+
+
+def test_depth_unit_recorded_and_implausible_depth_warned(logs, imported, tmp_path, caplog):
+    """Each depth stream records its unit and median depth; a unit 100x off (millimetres declared as tenths of a
+    metre) imports with a warning naming the median."""
+    import yaml
+
+    _, bag, folder = imported
+    for art, unit in ((bag, None), (folder, 1.0)):
+        entry = json.loads(art.file("recording.json").read_text())["streams"]["depth/frontleft"]
+        assert entry["depth_unit"] and 0.1 <= entry["median_depth_m"] <= 20.0
+        assert unit is None or entry["depth_m_per_unit"] == unit
+    bag_path, _ = logs
+    with RobotLog(bag_path) as rl:
+        wrong = export_folder(rl, tmp_path / "wrong", depth_suffix=".png")
+    for info in (wrong / "depth").glob("*/camera_info.yaml"):
+        info.write_text(yaml.safe_dump(yaml.safe_load(info.read_text()) | {"depth_m_per_unit": 0.1}))
+    ws = tmp_path / "ws"
+    with caplog.at_level("WARNING"):
+        assert main(["--workspace", str(ws), "import-log", str(wrong), "--tag", "recording/wrong"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "median depth" in r.getMessage()]
+    assert warned and "outside 0.1-20 m" in warned[0] and "0.1 m per unit" in warned[0], warned
+    store = Store(ws)
+    entry = json.loads(store.get(store.resolve("recording/wrong")).file("recording.json").read_text())
+    entry = entry["streams"]["depth/frontleft"]
+    assert entry["depth_m_per_unit"] == 0.1 and entry["depth_unit"] == "depth_m_per_unit in camera_info.yaml"
+    assert entry["median_depth_m"] > 20.0

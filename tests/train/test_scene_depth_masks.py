@@ -259,7 +259,7 @@ def test_split_batch_depth_gradient_is_the_whole_batch_gradient(tiny_data):
 def test_an_imported_export_trains_with_its_depth_and_masks(run_cli, store, tmp_path):
     """nsim reconstruct --import: millimetre PNGs in the export's units (3.7 a metre), masks hiding the
     even frames; the poses artifact's depth reads back in metres and its masks steer the draws."""
-    from nsim.io.images import read_depth_png_mm
+    from nsim.io.images import read_depth_png
     from nsim.io.tum import Trajectory, write_tum
     from tests.stages.test_reconstruct_import import EXPORT_SCALE, _export_scene, _imported, _room
 
@@ -272,7 +272,7 @@ def test_an_imported_export_trains_with_its_depth_and_masks(run_cli, store, tmp_
     _, report, raw, art = _imported(store, out)
     data = SceneData.load(art.path)
     assert data.depth_unit_scale == pytest.approx(1e-3 / EXPORT_SCALE, rel=1e-6)
-    stored_m = read_depth_png_mm(path.parent / "depths" / "frame_00003.png")  # export units / 1000
+    stored_m = read_depth_png(path.parent / "depths" / "frame_00003.png", 1000.0)  # export units / 1000
     np.testing.assert_allclose(data.read_depth_z(3), stored_m / EXPORT_SCALE, rtol=1e-6)
     assert data.masks[1::2].all() and not data.masks[0::2].any()
     tr = SceneTrainer(data, micro_cfg(data={"holdout_every": 0, "bounds": "cameras"},
