@@ -454,6 +454,25 @@ def exif_hfov_deg(paths: list[Path]) -> float | None:
     return math.degrees(2.0 * math.atan(18.0 / f))
 
 
+#: A file stem that is a timestamp: seconds with a decimal point (TUM RGB-D: ``1305031102.175304``) or whole
+#: nanoseconds (16 digits or more: since 1970-04-26), as ``nsim import-log`` reads frame names.
+STAMP_STEM = re.compile(r"\d+\.\d+|\d{16,}")
+
+
+def stamps_from_names(names: Sequence[str], where: str) -> dict[str, float] | None:
+    """``name -> seconds`` when every frame's stem is a timestamp (``STAMP_STEM``), None when none is;
+    InputError naming ``where`` and a frame of each kind when some are and some are not."""
+    stems = {n: Path(n).stem for n in names}
+    stamped = [n for n, s in stems.items() if STAMP_STEM.fullmatch(s)]
+    if not stamped:
+        return None
+    if len(stamped) < len(stems):
+        other = next(n for n in stems if n not in stamped)
+        raise InputError(f"{where}: {stamped[0]} is named by its timestamp but {other} is not; name every image by "
+                         "its timestamp or none")
+    return {n: (int(s) / 1e9 if "." not in s else float(s)) for n, s in stems.items()}
+
+
 def load_image_folder(image_dir: str | os.PathLike, shared_intrinsics: bool = True) -> list[SelectedFrame]:
     """Every JPG/JPEG/PNG image of a folder, in name order (see :func:`list_image_files`).
 

@@ -122,8 +122,11 @@ def load_reference(path: str | os.PathLike) -> Reference:
     return Reference(str(path), traj.poses_se3(), None, traj.timestamps_s)
 
 
-def _associate(names: list[str], timestamps_s: dict[str, float] | None, ref: Reference,
-               max_dt_s: float) -> tuple[np.ndarray, np.ndarray, str]:
+def associate_reference(names: list[str], timestamps_s: dict[str, float] | None, ref: Reference,
+                        max_dt_s: float) -> tuple[np.ndarray, np.ndarray, str]:
+    """Indices into ``names`` and into the reference's poses that match, and how (``name`` or ``timestamp``):
+    by file name when at least three names match, else by time within ``max_dt_s``. InputError when the
+    frames cannot be matched (it depends on the inputs only: ``nsim reconstruct`` checks it before SfM)."""
     by_name = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     if ref.names is not None:
         by_name = associate_by_name(names, list(ref.names))
@@ -138,8 +141,9 @@ def _associate(names: list[str], timestamps_s: dict[str, float] | None, ref: Ref
     if ref.names is not None:
         require_matches(len(by_name[0]), len(names), ref.source, "by file name")
     if ref.timestamps_s is not None:
-        raise InputError(f"{ref.source}: the reference has only timestamps, and the input frames have none "
-                         "(a folder of images): give a transforms.json whose file names match the images")
+        raise InputError(f"{ref.source}: the reference has only timestamps, and the input frames have none: name "
+                         "the images by their timestamps (1305031102.175304.png, as TUM RGB-D does) or give a "
+                         "transforms.json whose file names match the images")
     raise InputError(f"{ref.source}: the reference has neither file names nor timestamps to match frames by")
 
 
@@ -189,7 +193,7 @@ def metric_frame(
     c2w = np.asarray(cam_to_world, dtype=np.float64)
     pts = np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3)
     if reference is not None:
-        ie, ir, how = _associate(names, timestamps_s, reference, max_dt_s)
+        ie, ir, how = associate_reference(names, timestamps_s, reference, max_dt_s)
         fit = fit_sim3(c2w[ie, :3, 3], reference.cam_to_world[ir, :3, 3])
         log.info("Sim(3) to %s: scale %.6g, %d of %d pairs, rms %.4f m", reference.source, fit.s,
                  int(fit.inliers.sum()), len(ie), fit.rms_m)

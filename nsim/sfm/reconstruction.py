@@ -107,6 +107,18 @@ def _select_frames(source: Path, cfg, show_progress: bool):
     raise InputError(f"{source}: expected a video ({', '.join(VIDEO_SUFFIXES)}) or a folder of images")
 
 
+def frame_timestamps(frames, capture_times: dict[str, float], source: Path) -> dict[str, float] | None:
+    """Each frame's time in seconds: a video's, a capture's (``capture_times`` by stem), or an image folder's
+    file names when they are timestamps (``nsim.sfm.frames.stamps_from_names``); None when the frames have none."""
+    from nsim.sfm.frames import stamps_from_names
+
+    return ({f.name: f.timestamp_s for f in frames if f.timestamp_s is not None}
+            or {f.name: capture_times[Path(f.name).stem] for f in frames if Path(f.name).stem in capture_times}
+            or (stamps_from_names([f.name for f in frames], str(source)) if source.is_dir() and not capture_times
+                else None)
+            or None)
+
+
 def reconstruct(out_dir: Path, inputs, cfg, options: SfmOptions, source: Path, capture_times: dict[str, float],
                 show_progress: bool = False) -> tuple[dict[str, Any], dict[str, float]]:
     """SfM on the frames of ``source`` (a video or an image folder; a capture's images folder, with
@@ -124,6 +136,11 @@ def reconstruct(out_dir: Path, inputs, cfg, options: SfmOptions, source: Path, c
     known_camera = load_known_camera(inputs.intrinsics)
     reference, kd = scale_inputs(inputs.reference, inputs.known_distance)
     frames, selection = _select_frames(source, cfg, show_progress)
+    timestamps = frame_timestamps(frames, capture_times, source)
+    if reference is not None:  # the frames must match the reference before SfM, not after it
+        from nsim.sfm.metric import associate_reference
+
+        associate_reference([f.name for f in frames], timestamps, reference, cfg.max_dt_s)
     write_frames(frames, out_dir / "images")
     phases["frame_selection_s"] = time.perf_counter() - t0
 
@@ -137,9 +154,6 @@ def reconstruct(out_dir: Path, inputs, cfg, options: SfmOptions, source: Path, c
             progress_bar(None, "structure from motion", show_progress) as bar:
         result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,
                          progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
-    timestamps = ({f.name: f.timestamp_s for f in frames if f.timestamp_s is not None}
-                  or {f.name: capture_times[Path(f.name).stem] for f in frames if Path(f.name).stem in capture_times}
-                  or None)
     t1 = time.perf_counter()
     result, scale = to_metric(result, timestamps, reference=reference, known_distance=kd,
                               camera_height_m=inputs.camera_height_m, max_dt_s=cfg.max_dt_s, seed=options.seed)
