@@ -2,8 +2,7 @@
 libraries (torch, scipy, pycolmap, OpenCV, Ray, matplotlib, rosbags), so they answer in well under a second.
 
 Held by what a fresh interpreter has imported when the command returns, not by a wall-clock limit (which a busy
-machine breaks). The commands not listed here (bake, export, register-log) still load torch or pycolmap on a bad
-argument."""
+machine breaks)."""
 
 from __future__ import annotations
 
@@ -36,6 +35,9 @@ print(json.dumps({"code": code, "heavy": [m for m in HEAVY_NAMES if m in sys.mod
     ["train-scene", "nope"],
     ["train-human", "nope"],
     ["evaluate", "nope"],
+    ["bake", "nope"],
+    ["export", "nope"],
+    ["register-log", "nope", "--poses", "nope"],
 ])
 def test_cli_answers_without_heavy_imports(tmp_path, args):
     argv = ["--workspace", str(tmp_path / "ws"), *(a.format(tmp=tmp_path) for a in args)]

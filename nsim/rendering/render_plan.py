@@ -316,7 +316,8 @@ def bake_here(scene: ArtifactDir, device: str, shard_root: Path) -> Path:
     import uuid
 
     from nsim.rendering import OccupancyGrid, load_model
-    from nsim.rendering.bake_bricks import BakeConfig, bake
+    from nsim.rendering.bake_bricks import bake
+    from nsim.rendering.bake_config import BakeConfig
 
     dest = shard_root / "baked"
     if not dest.is_dir():

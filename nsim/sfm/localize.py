@@ -47,25 +47,21 @@ from nsim.geometry.cameras import Camera
 from nsim.geometry.conventions import COLMAP_PIXEL_OFFSET
 from nsim.geometry.transforms import invert_se3
 from nsim.sfm.colmap import camera_to_colmap, colmap_log_level
+from nsim.sfm.localize_settings import (
+    MAX_DESCRIPTOR_DISTANCE,
+    MAX_ERROR_FRACTION,
+    MAX_FEATURES,
+    MAX_OBSERVATION_PX,
+    MIN_INLIERS,
+    MIN_MAX_ERROR_PX,
+    RATIO,
+    RETRIEVAL_PER_IMAGE,
+    RETRIEVAL_QUERY_FEATURES,
+    TOP_K,
+)
 
 log = logging.getLogger(__name__)
 
-#: SIFT features per image (``nsim reconstruct``'s ``max_features`` default).
-MAX_FEATURES = 8192
-#: A scene keypoint takes the 3D point of the model's observation within this many pixels.
-MAX_OBSERVATION_PX = 1.5
-#: Keypoints per scene image (and query descriptors) compared during retrieval.
-RETRIEVAL_PER_IMAGE = 256
-RETRIEVAL_QUERY_FEATURES = 1024
-#: Lowe's ratio test and the largest distance of unit SIFT descriptors (COLMAP's matcher defaults).
-RATIO = 0.8
-MAX_DESCRIPTOR_DISTANCE = 0.7
-#: Scene images matched in full, inliers a pose needs, and the RANSAC threshold as a fraction of
-#: max(width, height) when none is given (12 px at COLMAP's 1200 px default image, 2 px at 200 px).
-TOP_K = 5
-MIN_INLIERS = 20
-MAX_ERROR_FRACTION = 0.01
-MIN_MAX_ERROR_PX = 2.0
 #: Query descriptors per block of the brute-force products (bounds their memory: matching makes
 #: blocks of _CHUNK x scene keypoints, retrieval _RETRIEVAL_CHUNK x images x RETRIEVAL_PER_IMAGE).
 _CHUNK = 1024

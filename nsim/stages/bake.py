@@ -45,7 +45,7 @@ import numpy as np
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.io import atomic_path
-from nsim.rendering.bake_bricks import BakeConfig
+from nsim.rendering.bake_config import BakeConfig
 from nsim.stages.runner import SceneInputs, cached, device_kind, rerun, resolve_scene
 
 STAGE = "bake"
@@ -120,17 +120,16 @@ def resume_dir(ctx: RunContext, key: str) -> Path:
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     """Bake (or resume, or find in the run cache)."""
-    import torch
-
-    from nsim.rendering import OccupancyGrid, load_model
-    from nsim.rendering.bake_bricks import bake_passes, bake_surface, evaluate_lattice, nerf_targets
-
     store = ctx.store
     inputs = Inputs(scene=resolve_scene(inputs.scene, ctx, STAGE, files=("occupancy_grid.npy",)))
     cfg.check()
     key = action_key(inputs, cfg, ctx)
     if (hit := cached(ctx, key)) is not None:
         return Outputs(baked=hit, cache_hit=True)
+    import torch  # the inputs checked first: a bad argument fails without loading torch
+
+    from nsim.rendering import OccupancyGrid, load_model
+    from nsim.rendering.bake_bricks import bake_passes, bake_surface, evaluate_lattice, nerf_targets
 
     art = store.get(inputs.scene)
     t0 = time.perf_counter()

@@ -41,7 +41,7 @@ import numpy as np
 from nsim.config import param
 from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.export.extract import MeshConfig, PointsConfig
+from nsim.export.export_config import MeshConfig, PointsConfig
 from nsim.stages.runner import SceneInputs, cached, device_kind, rerun, resolve_scene
 
 STAGE = "export"
@@ -102,14 +102,14 @@ def training_views(ctx: RunContext, scene_id: str, view_stride: int) -> tuple[st
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
-    from nsim.export.extract import NoSurface, cast_views, mesh_from_density, point_cloud, surface_level
-    from nsim.rendering import OccupancyGrid, load_model
-
     store = ctx.store
     inputs = Inputs(scene=resolve_scene(inputs.scene, ctx, STAGE))
     key = action_key(inputs, cfg, ctx)
     if (hit := cached(ctx, key)) is not None:
         return Outputs(export=hit, cache_hit=True)
+    # the inputs checked first: a bad argument fails without loading torch
+    from nsim.export.extract import NoSurface, cast_views, mesh_from_density, point_cloud, surface_level
+    from nsim.rendering import OccupancyGrid, load_model
 
     art = store.get(inputs.scene)
     poses_id, views = training_views(ctx, inputs.scene, cfg.points.view_stride)

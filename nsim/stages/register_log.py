@@ -43,7 +43,7 @@ import numpy as np
 from nsim.config import param
 from nsim.context import RunContext
 from nsim.errors import InputError
-from nsim.sfm import localize as loc_defaults
+from nsim.sfm import localize_settings as loc_defaults
 from nsim.sfm.drift_refinement import DriftModel
 from nsim.sfm.registration_output import write_registration
 from nsim.sfm.registration_types import RegisterOptions
@@ -229,13 +229,12 @@ def localize_frames(plan: _Plan, rec_path: Path, poses_path: Path, cfg: Config, 
 
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
-    from nsim.sfm.register import register_trajectory
-
     store = ctx.store
     inputs = resolve_inputs(inputs, ctx)
     key = action_key(inputs, cfg, ctx)
     if (hit := cached(ctx, key)) is not None:
         return Outputs(registration=hit, cache_hit=True)
+    from nsim.sfm.register import register_trajectory  # scipy after the input checks
     plan = check_inputs(inputs, cfg, ctx)
     rec, poses = store.get(inputs.recording), store.get(inputs.poses)
     t0 = time.perf_counter()

@@ -219,7 +219,7 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig, person_model=N
         extra["people"] = person_model  # the scenario names checkpoints (refs can move: the resolved choice)
     if cfg.method == "baked" and inputs.baked is None:  # baked here: with BakeConfig()'s settings
         from nsim.config import to_dict
-        from nsim.rendering.bake_bricks import BakeConfig
+        from nsim.rendering.bake_config import BakeConfig
 
         extra["bake"] = to_dict(BakeConfig())
     if rig is not None:

@@ -58,7 +58,8 @@ def test_cap_is_seeded_sorted_and_unique():
 def test_no_hit_says_what_to_lower():
     import pytest
 
-    from nsim.export.extract import NoSurface, PointsConfig, ViewRays, point_cloud
+    from nsim.export.export_config import PointsConfig
+    from nsim.export.extract import NoSurface, ViewRays, point_cloud
 
     n = 5
     rays = ViewRays(torch.zeros(n, 3), torch.tensor([[1.0, 0.0, 0.0]]).expand(n, 3), torch.zeros(n), torch.full((n,), 9.0),

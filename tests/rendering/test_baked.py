@@ -14,7 +14,8 @@ import torch
 
 from nsim.errors import InputError
 from nsim.fields.scene_field import SceneFieldConfig
-from nsim.rendering.bake_bricks import BakeConfig, bake
+from nsim.rendering.bake_bricks import bake
+from nsim.rendering.bake_config import BakeConfig
 from nsim.rendering.baked import (
     BakedScene,
     ColorDecoder,

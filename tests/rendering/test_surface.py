@@ -15,7 +15,8 @@ import torch
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.rendering import surface as surf
-from nsim.rendering.bake_bricks import BakeConfig, bake, training_rays
+from nsim.rendering.bake_bricks import bake, training_rays
+from nsim.rendering.bake_config import BakeConfig
 from nsim.rendering.baked import BakedScene, render_baked
 from nsim.rendering.model import SceneModel
 from nsim.rendering.occupancy import OccupancyGrid

@@ -146,10 +146,10 @@ def test_on_demand_bake_is_the_default_bake(world, monkeypatch):
     the test stays small): the images of a render given the tiny preset's artifact."""
     from nsim.config import load_config
     from nsim.io.images import read_image
-    from nsim.rendering import bake_bricks as core
+    from nsim.rendering import bake_config
 
-    tiny = load_config(core.BakeConfig, stage="bake", preset="tiny", overrides=["surface=false"])
-    monkeypatch.setattr(core, "BakeConfig", lambda: tiny)
+    tiny = load_config(bake_config.BakeConfig, stage="bake", preset="tiny", overrides=["surface=false"])
+    monkeypatch.setattr(bake_config, "BakeConfig", lambda: tiny)
     given = render_poses(world, "baked", "render/baked-given", "--baked", "baked/t", "--set", "max_frames=2")
     here = render_poses(world, "baked", "render/baked-here", "--set", "max_frames=2")
     assert given.id != here.id and "baked" not in here.manifest["inputs"]
