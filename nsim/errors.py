@@ -21,3 +21,13 @@ class ConfigError(NsimError):
 
 class WorkspaceError(NsimError):
     """A workspace reference that cannot be resolved, or a workspace in a bad state."""
+
+
+def name_list(names, most: int = 8) -> str:
+    """``a, b, c`` for a one-line error; past ``most`` names, the first ``most`` and ``and N more`` (a bag's 300
+    topics would make a 3,000-character line); ``none`` for none."""
+    names = [str(n) for n in names]
+    if not names:
+        return "none"
+    shown = ", ".join(names[:most])
+    return shown if len(names) <= most else f"{shown} and {len(names) - most} more"

@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
 
-from nsim.errors import InputError
+from nsim.errors import InputError, name_list
 from nsim.geometry.cameras import Camera
 from nsim.io.bag_topics import TopicSummary, bag_paths, open_bag_reader
 from nsim.io.header_stamps import HeaderStamps
@@ -157,7 +157,7 @@ class RobotLog:
             close = difflib.get_close_matches(topic, list(self.topics), n=1)
             hint = f"; did you mean {close[0]}?" if close else ""
             raise InputError(f"{self._where(topic)}: no such topic ({what}){hint} (the bag's {short} topics: "
-                             f"{', '.join(have) if have else 'none'})")
+                             f"{name_list(have)})")
         msgtype = self.topics[topic].msgtype
         if msgtype not in msgtypes:
             raise InputError(f"{self._where(topic)}: is {msgtype or 'of several types'}, {what} needs {short}")

@@ -45,7 +45,7 @@ from typing import Any
 
 from nsim.config import param
 from nsim.context import RunContext
-from nsim.errors import InputError
+from nsim.errors import InputError, name_list
 from nsim.io.recording_output import kept_frames, write_recording
 from nsim.stages.runner import cached, rerun
 
@@ -155,7 +155,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         streams = _streams(rl)
         if not streams:
             raise InputError(f"{rl.name}: no camera, depth or LiDAR topic selected (topics: "
-                             f"{', '.join(sorted(rl.topics)) or 'none'})")
+                             f"{name_list(sorted(rl.topics))})")
         traj = rl.body_trajectory(cfg.trajectory)
         if len(traj.stamps_ns) < 2:
             raise InputError(f"{rl.name}: the body trajectory ({traj.source}) has {len(traj.stamps_ns)} pose(s); "
