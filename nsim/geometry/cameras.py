@@ -64,10 +64,6 @@ _TINY = 1e-30  # floor for squared radii under sqrt (keeps gradients finite at t
 _Z_MIN = 1e-12  # points with z <= this are "behind" a pinhole/OpenCV camera
 
 
-def _namespace(x: Array):
-    return namespace(x)
-
-
 def _as_float(x, name: str, tail: tuple[int, ...]) -> Array:
     """Tensors stay tensors (ints become the default float dtype), the rest floating numpy; checks ``(..., *tail)``."""
     if is_tensor(x):
@@ -321,7 +317,7 @@ class Camera:
         and inside the image. ``uv`` of invalid points is unspecified (but finite for finite input).
         """
         p = _as_float(points_cam, "points_cam", (3,))
-        xp = _namespace(p)
+        xp = namespace(p)
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         if self.model == "EQUIRECTANGULAR":
             u = self.fx * xp.arctan2(x, z) + self.cx
@@ -355,7 +351,7 @@ class Camera:
         implicit-function gradient at the solution.
         """
         uv = _as_float(uv, "uv", (2,))
-        xp = _namespace(uv)
+        xp = namespace(uv)
         mx = (uv[..., 0] - self.cx) / self.fx
         my = (uv[..., 1] - self.cy) / self.fy
         if self.model == "EQUIRECTANGULAR":
@@ -414,7 +410,7 @@ class Camera:
         Pixels the model cannot unproject get NaN directions.
         """
         c2w = _as_float(cam_to_world, "cam_to_world", (4, 4))
-        xp = _namespace(c2w)
+        xp = namespace(c2w)
         dirs = xp.einsum("...ij,hwj->...hwi", c2w[..., :3, :3], self.pixel_dirs_cam(like=c2w))
         origins = c2w[..., None, None, :3, 3]
         if xp is not np:
@@ -475,12 +471,12 @@ class Camera:
         k1, k2, k3, k4 = self.dist
         t2 = theta * theta
         slope = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
-        xp = _namespace(theta)
+        xp = namespace(theta)
         return theta - (self._fisheye_distort(theta) - theta_d) / xp.clip(slope, 1e-6, None)
 
     def _fisheye_undistort(self, theta_d: Array) -> Array:
         """Solve ``theta_d = theta (1 + k1 theta^2 + ...)`` for theta in ``[0, max_angle_rad]``."""
-        xp = _namespace(theta_d)
+        xp = namespace(theta_d)
         theta_max = self.max_angle_rad
         with no_grad(theta_d):
             target = _detach(theta_d)

@@ -529,7 +529,7 @@ def read_depth_frame(path: Path, unit: DepthUnit | None) -> np.ndarray:
 
     suffix = path.suffix.lower()
     if suffix == ".png":
-        if unit is None or unit.m_per_unit == 1.0:
+        if unit is None:
             raise InputError(f"{path}: 16-bit PNG depth without its unit")
         return read_depth_png(path, unit.units_per_m)
     if suffix == ".exr":

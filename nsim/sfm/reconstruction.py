@@ -112,11 +112,11 @@ def frame_timestamps(frames, capture_times: dict[str, float], source: Path) -> d
     file names when they are timestamps (``nsim.sfm.frames.stamps_from_names``); None when the frames have none."""
     from nsim.sfm.frames import stamps_from_names
 
-    return ({f.name: f.timestamp_s for f in frames if f.timestamp_s is not None}
-            or {f.name: capture_times[Path(f.name).stem] for f in frames if Path(f.name).stem in capture_times}
-            or (stamps_from_names([f.name for f in frames], str(source)) if source.is_dir() and not capture_times
-                else None)
-            or None)
+    if video := {f.name: f.timestamp_s for f in frames if f.timestamp_s is not None}:
+        return video
+    if capture_times:
+        return {f.name: capture_times[Path(f.name).stem] for f in frames if Path(f.name).stem in capture_times} or None
+    return stamps_from_names([f.name for f in frames], str(source)) if source.is_dir() else None
 
 
 def reconstruct(out_dir: Path, inputs, cfg, options: SfmOptions, source: Path, capture_times: dict[str, float],

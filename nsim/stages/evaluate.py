@@ -29,11 +29,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from nsim.config import from_dict
 from nsim.context import RunContext
 from nsim.errors import InputError
 from nsim.evaluation.evaluate_config import TABLES, Config, DetectionConfig, SlamConfig
 from nsim.evaluation.inputs import EvaluationInputs
+from nsim.stages.runner import cached, device_kind, rerun
 
 STAGE = "evaluate"
 VERSION = 3  # 2: numbers rounded (nsim.io.canonical); 3: spot-depth notes no-return px per camera
@@ -97,7 +97,7 @@ def _runs_lpips(cfg: Config) -> bool:
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext) -> str:
     extra: dict[str, Any] = {"files": _file_digests(inputs)}
     if _runs_lpips(cfg):
-        extra["device"] = "cuda" if str(ctx.device).startswith("cuda") else "cpu"
+        extra["device"] = device_kind(ctx.device)
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
@@ -120,8 +120,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     if cfg.depth_max_m <= cfg.depth_min_m:
         raise InputError(f"depth_max_m ({cfg.depth_max_m:g}) must be greater than depth_min_m ({cfg.depth_min_m:g})")
     key = action_key(inputs, cfg, ctx)
-    if not ctx.force and (hit := ctx.store.lookup(key)) is not None:
-        return Outputs(evaluation=hit.id, cache_hit=True)
+    if (hit := cached(ctx, key)) is not None:
+        return Outputs(evaluation=hit, cache_hit=True)
     ev = Evaluation(evaluation_inputs(inputs, cfg, ctx), cfg)
     result = compute(ev)  # every input is read and checked before publishing
     with ctx.store.publish(kind="evaluation", stage=STAGE, version=VERSION, key=key, config=cfg,
@@ -138,8 +138,7 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     files = manifest.get("summary", {}).get("files", {})
     renders = tuple(ids[f"render{k}"] for k in range(len(ids)))
     inputs = Inputs(renders=renders, **{k: Path(v) for k, v in files.items()})
-    ctx = dataclasses.replace(ctx, force=True)
-    return run(inputs, from_dict(Config, manifest["config"]), ctx).evaluation
+    return rerun(run, inputs, Config, manifest, ctx).evaluation
 
 
 def load_table(ctx: RunContext, evaluation: str):
