@@ -47,6 +47,12 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
     default=None,
     help="Sweep only, --engine ray: a cluster to join ('auto', HOST:6379 or ray://HOST:10001).",
 )
+@click.option(
+    "--robot-trajectory",
+    default=None,
+    help="Drive the robot along this path instead of the scenario's: a TUM file, a recording "
+    "(nsim import-log; its odometry frame taken as the world) or a registration (nsim register-log).",
+)
 @click.pass_context
 def command(
     click_ctx,
@@ -61,6 +67,7 @@ def command(
     engine,
     workers,
     address,
+    robot_trajectory,
 ):
     """Simulate humans reacting to the robot: a trajectory artifact per scenario."""
     from nsim.stages import simulate
@@ -69,10 +76,12 @@ def command(
         raise click.UsageError("give exactly one of --scenario FILE or --sweep FILE")
     if scenario_file is not None and (summary_file or engine != "local" or workers != 1 or address):
         raise click.UsageError("--summary, --engine, --workers and --address apply to --sweep only")
+    if robot_trajectory is not None and sweep_file is not None:
+        raise click.UsageError("--robot-trajectory applies to --scenario only (a sweep's scenario names its own)")
     cfg = resolve_config(simulate.Config, "simulate", preset, config_file, overrides)
     ctx = run_context(click_ctx, force)
     if scenario_file is not None:
-        sc = simulate.load_scenario(scenario_file, store=ctx.store)
+        sc = simulate.load_scenario(scenario_file, store=ctx.store, robot_trajectory=robot_trajectory)
         out = simulate.run(simulate.Inputs(sc), cfg, ctx)
         report_artifact(ctx, out.trajectory, out.cache_hit, tag)
         return

@@ -34,7 +34,12 @@ Scene (the 2D obstacle map, world x/y metres on the floor z = 0)
     ``"unknown": "free"``, and everything beyond the raster are obstacles.
 Robot (body frame: x forward, y left, z up; ``RobotSpec``)
     ``poses`` (timed body-to-world poses), ``waypoints_m`` + ``speed_mps`` (+ ``loop``), ``tum``
-    (a TUM file, path relative to the scenario file) or ``walk_loop`` (the test room's ellipse).
+    (a TUM file, path relative to the scenario file), ``walk_loop`` (the test room's ellipse), or a
+    real robot's path: ``recording`` (an ``nsim import-log`` artifact, e.g. a trajectory-only bag;
+    its odometry frame is taken as the world, which is logged) or ``registration`` (an ``nsim
+    register-log`` artifact: the path placed in the scene's world). The simulate stage, which holds
+    the workspace, inlines those as ``poses`` with a ``source`` naming the artifact
+    (:func:`with_recorded_trajectory`).
     Waypoint paths face along the path (``nsim.crowd.paths.waypoint_poses``). The body sits
     ``body_height_m`` above the floor. The humans see the robot as a capsule: the segment
     ``+- half_length_m`` along its heading grown by ``radius_m`` (Spot: 0.3 and 0.28, 1.16 m x 0.56 m).
@@ -389,12 +394,38 @@ def _inline_tum(spec: ScenarioSpec, d: dict) -> None:
     t = tum.timestamps_s - (tum.timestamps_s[0] if traj["rebase_time"] else 0.0)
     if t[0] < 0:
         raise spec.error(where, f"{path}: negative timestamps (set rebase_time: true)")
-    d["robot"]["trajectory"] = {
-        "poses": [
-            {"t_s": float(ti), "position_m": p.tolist(), "orientation_quat_wxyz": q.tolist()}
-            for ti, p, q in zip(t, tum.positions_xyz, tum.orientations_quat_wxyz, strict=True)
-        ]
-    }
+    d["robot"]["trajectory"] = _poses_entry(t, tum.positions_xyz, tum.orientations_quat_wxyz)
+
+
+def _poses_entry(t_s: np.ndarray, positions_m: np.ndarray, quats_wxyz: np.ndarray, source: str | None = None) -> dict:
+    """A ``poses`` trajectory entry from arrays (``source``: where nsim took them from, kept in the scenario)."""
+    entry: dict[str, Any] = {"poses": [
+        {"t_s": float(ti), "position_m": p.tolist(), "orientation_quat_wxyz": q.tolist()}
+        for ti, p, q in zip(t_s, np.asarray(positions_m, np.float64), np.asarray(quats_wxyz, np.float64), strict=True)
+    ]}
+    if source is not None:
+        entry["source"] = source
+    return entry
+
+
+def with_recorded_trajectory(spec: ScenarioSpec, stamps_ns: np.ndarray, positions_m: np.ndarray,
+                             quats_wxyz: np.ndarray, source: str) -> ScenarioSpec:
+    """``spec`` with its ``robot.trajectory`` (a ``recording`` or ``registration`` entry, or any other when a
+    command line replaces it) replaced by timed poses: ``stamps_ns (N,)`` int64 on the recording's clock (made to
+    start at 0 unless the entry says ``rebase_time: false``), body poses ``positions_m (N, 3)`` and
+    ``quats_wxyz (N, 4)`` in the scene's world; ``source`` says where they came from and is kept in the
+    scenario (``robot.trajectory.source``). The poses are checked as a file's are."""
+    d = copy.deepcopy(dict(spec.data))
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    where = ("robot", "trajectory")
+    if len(stamps_ns) < 2 or np.any(np.diff(stamps_ns) <= 0):
+        raise spec.error(where, f"{source}: {len(stamps_ns)} poses with increasing stamps; a path needs at least 2")
+    rebase = d["robot"]["trajectory"].get("rebase_time", True)
+    t = (stamps_ns - (stamps_ns[0] if rebase else 0)) / 1e9
+    d["robot"]["trajectory"] = _poses_entry(t, positions_m, quats_wxyz, source)
+    out = dataclasses.replace(spec, data=d)
+    _check_poses(out, d)
+    return out
 
 
 def _check_controller(spec: ScenarioSpec, d: dict) -> None:

@@ -70,6 +70,7 @@ def write_recording(out_dir: Path, rl, traj, plan: list, log_paths: list[str], i
                        "duration_s": float((traj.stamps_ns[-1] - traj.stamps_ns[0]) / 1e9),
                        "length_m": float(steps.sum()), "file": "trajectory.tum",
                        "meaning": "body_to_odom: the body's pose in the odometry frame"},
+        "trajectory_only": not plan,
         "streams": {},
     }
     total = sum(len(keep) for *_, keep in plan)

@@ -16,6 +16,7 @@ which makes it a ROS 2 bag)::
     trajectory.tum                 the body's pose in the odometry frame, body_to_odom (TUM: stamp in
                                    seconds, tx ty tz qx qy qz qw; repeated stamps dropped with a warning)
     rig.yaml  or  rig.urdf         each sensor's extrinsic, sensor_to_body (below); exactly one of them
+                                   (neither in a trajectory-only folder: trajectory.tum alone, no streams)
     cameras/<name>/                colour or grey frames: .png .jpg .jpeg .bmp .tif .tiff .webp .pgm .ppm
         camera_info.yaml           ROS camera_info YAML (below), required
         timestamps.txt | times.csv optional: the frames' stamps (below)
@@ -30,6 +31,14 @@ which makes it a ROS 2 bag)::
                                    intensity, ring, time when present) or .npy ((N, 3) float x y z, or a
                                    structured array with fields x, y, z and optionally intensity, ring, time)
         timestamps.txt | times.csv optional
+
+**A TUM RGB-D sequence as downloaded** (``rgb/``, ``rgb.txt``, ``depth/``, ``depth.txt``,
+``groundtruth.txt``) is read as it is, given the colour camera's calibration as ``camera_info.yaml``
+at its top (TUM ships none; the error lists TUM's published intrinsics per sensor): camera ``rgb``
+(frames listed by rgb.txt), depth ``rgb`` (depth.txt's frames, 1/5000 m; TUM registers them to the
+colour camera, so they share its intrinsics and extrinsic), the body is the colour camera (frame
+``rgb``, extrinsic identity) and its trajectory ``groundtruth.txt``, the camera's optical centre in
+the motion-capture frame (``mocap``).
 
 **Depth units are never guessed.** A 16-bit PNG holds integers whose unit the folder states: TUM
 RGB-D's ``depth.txt`` beside the frames (its layout: 1/5000 m) or ``depth_m_per_unit`` in the
@@ -125,6 +134,8 @@ CAMERA_INFO_FILE = "camera_info.yaml"
 TIMESTAMP_FILES = ("timestamps.txt", "times.csv", "rgb.txt", "depth.txt")  # the last two: TUM RGB-D's names
 #: TUM RGB-D's depth list; beside 16-bit PNG depth it states their unit, 1/5000 m (TUM's file formats page).
 TUM_DEPTH_FILE = "depth.txt"
+#: TUM RGB-D's ground truth: the colour camera's optical centre in the motion-capture frame (TUM format).
+TUM_GROUNDTRUTH_FILE = "groundtruth.txt"
 TUM_DEPTH_UNIT = DepthUnit(1 / 5000, "TUM RGB-D layout (depth.txt beside the frames): 1/5000 m")
 #: camera_info.yaml's key for a 16-bit depth PNG's unit, metres per integer.
 DEPTH_UNIT_KEY = "depth_m_per_unit"
@@ -138,6 +149,12 @@ CAMERA_INFO_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix
                     "distortion_coefficients", "rectification_matrix", "projection_matrix")
 RIG_KEYS = ("body_frame", "odom_frame", "sensors")
 _NS = 1_000_000_000
+
+
+def is_tum_sequence(path: str | os.PathLike) -> bool:
+    """A TUM RGB-D sequence as downloaded: ``rgb.txt`` beside ``rgb/`` (and no ``cameras/`` folder)."""
+    path = Path(path)
+    return (path / "rgb.txt").is_file() and (path / "rgb").is_dir() and not (path / "cameras").exists()
 
 
 def is_robot_folder(path: str | os.PathLike) -> bool:
@@ -194,16 +211,17 @@ def read_tum_ns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return stamps, traj.poses_se3()
 
 
-def frame_stamps(folder: Path, suffixes: tuple[str, ...]) -> tuple[list[Path], np.ndarray]:
+def frame_stamps(folder: Path, suffixes: tuple[str, ...], table: Path | None = None) -> tuple[list[Path], np.ndarray]:
     """The frames of one stream folder in order and their ``stamps_ns (N,)`` int64 (module docstring).
 
     Files with other suffixes (and camera_info.yaml, the timestamps file, hidden files) are not
-    frames. InputError naming the file for a frame without a stamp, a timestamps file that does not
-    match the frames, or stamps that do not increase.
+    frames. ``table``: the timestamps file when it lies elsewhere (a TUM RGB-D sequence's ``rgb.txt``
+    beside ``rgb/``). InputError naming the file for a frame without a stamp, a timestamps file that
+    does not match the frames, or stamps that do not increase.
     """
     frames = {p.name: p for p in folder.iterdir()
               if p.suffix.lower() in suffixes and not p.name.startswith(".") and not p.is_dir()}
-    stamp_files = [folder / n for n in TIMESTAMP_FILES if (folder / n).is_file()]
+    stamp_files = [table] if table is not None else [folder / n for n in TIMESTAMP_FILES if (folder / n).is_file()]
     if len(stamp_files) > 1:
         raise InputError(f"{folder}: both {' and '.join(TIMESTAMP_FILES)}; keep one")
     if not stamp_files:
@@ -219,8 +237,9 @@ def frame_stamps(folder: Path, suffixes: tuple[str, ...]) -> tuple[list[Path], n
             if a == b:
                 raise InputError(f"{folder / name_b}: the same timestamp as {name_a} ({a} ns); stamps must increase")
         return [frames[n] for _, n in named], np.array([s for s, _ in named], np.int64).reshape(-1)
+    inside = folder if table is None else table.parent
     table = stamp_files[0]
-    if not table.resolve().is_relative_to(folder.resolve()):
+    if not table.resolve().is_relative_to(inside.resolve()):
         raise InputError(f"{table}: links outside its folder")
     rows: list[tuple[int, list[str]]] = []
     for number, line in enumerate(table.read_text().splitlines(), start=1):
@@ -342,7 +361,7 @@ class FolderRig:
     """The extrinsics of a folder's rig: ``sensor_to_body`` name -> ``(4, 4)``; the frames' names;
     ``path``: the rig file they were read from."""
 
-    path: Path
+    path: Path | None  # None: a trajectory-only folder, without a rig file
     sensor_to_body: Mapping[str, np.ndarray]
     body_frame: str = "body"
     odom_frame: str = "odom"
@@ -497,11 +516,12 @@ def _npy(path: Path) -> np.ndarray:
     return array
 
 
-def depth_unit(folder: Path, info: Path, stated: Any, suffix: str) -> DepthUnit | None:
+def depth_unit(folder: Path, info: Path, stated: Any, suffix: str, tum: bool | None = None) -> DepthUnit | None:
     """The unit of a depth folder's frames (module docstring): ``stated`` (camera_info.yaml's
     ``depth_m_per_unit``, or None) and TUM's ``depth.txt`` for 16-bit PNGs; metres for float frames.
     InputError for a PNG folder that states none, a unit that is not a positive number, two that disagree,
-    or a unit stated for float frames."""
+    or a unit stated for float frames. ``tum``: whether TUM's layout states the unit (None: ``depth.txt`` in
+    ``folder``)."""
     if stated is not None and (isinstance(stated, bool) or not isinstance(stated, int | float)
                                or not math.isfinite(stated) or stated <= 0):
         raise InputError(f"{info}: {DEPTH_UNIT_KEY} must be a positive number of metres per unit, got {stated!r}")
@@ -509,7 +529,7 @@ def depth_unit(folder: Path, info: Path, stated: Any, suffix: str) -> DepthUnit 
         if stated is not None:
             raise InputError(f"{info}: {DEPTH_UNIT_KEY} is for 16-bit PNG depth; {suffix or 'no'} frames are metres")
         return DepthUnit(1.0, f"{suffix} frames: metres") if suffix else None
-    tum = (folder / TUM_DEPTH_FILE).is_file()
+    tum = (folder / TUM_DEPTH_FILE).is_file() if tum is None else tum
     if stated is None:
         if tum:
             return TUM_DEPTH_UNIT
@@ -603,11 +623,14 @@ class RobotFolder:
         if not self.path.is_dir():
             raise InputError(f"{self.path}: not a directory")
         self._root = self.path.resolve()
+        if is_tum_sequence(self.path):
+            self._open_tum_sequence()
+            return
         trajectory = self.path / TRAJECTORY_FILE
         if not trajectory.is_file():
             raise InputError(f"{trajectory}: no such file; a recording folder needs the body's trajectory (TUM) "
                              "(a ROS 2 bag directory has metadata.yaml)")
-        self._trajectory = read_tum_ns(self._inside(trajectory))
+        self._trajectory, self._trajectory_file = read_tum_ns(self._inside(trajectory)), TRAJECTORY_FILE
         self.cameras: dict[str, FolderCameraStream] = {}
         self.depth: dict[str, FolderCameraStream] = {}
         self.lidars: dict[str, FolderLidarStream] = {}
@@ -619,10 +642,17 @@ class RobotFolder:
                     group = self.depth if kind == "depth" else self.cameras
                     group[d.name] = self._camera_stream(d, kind == "depth")
         self.topics = [s.topic for group in (self.cameras, self.depth, self.lidars) for s in group.values()]
-        if not self.topics:
-            raise InputError(f"{self.path}: no stream folders (cameras/<name>/, depth/<name>/, lidar/<name>/)")
         names = sorted({s.frame_id for group in (self.cameras, self.depth, self.lidars) for s in group.values()})
         rigs = [self.path / n for n in RIG_FILES if (self.path / n).is_file()]
+        if not self.topics:
+            if rigs:  # a rig without sensors is a misnamed stream folder more likely than a trajectory alone
+                raise InputError(f"{self.path}: {rigs[0].name} but no stream folders (cameras/<name>/, depth/<name>/, "
+                                 f"lidar/<name>/; a trajectory-only folder holds {TRAJECTORY_FILE} alone)")
+            self.rig = FolderRig(None, {})  # a trajectory-only recording: no sensor needs an extrinsic
+            self.body_frame, self.odom_frame = self.rig.body_frame, self.rig.odom_frame
+            log.info("%s: no stream folders and no rig: a trajectory-only recording (%s alone)", self.path,
+                     TRAJECTORY_FILE)
+            return
         if len(rigs) != 1:
             raise InputError(f"{self.path}: " + ("no rig.yaml or rig.urdf (the sensors' extrinsics)" if not rigs
                                                  else "both rig.yaml and rig.urdf; keep one"))
@@ -630,15 +660,47 @@ class RobotFolder:
         self.rig = read_rig_yaml(rig_path) if rig_path.suffix == ".yaml" else read_rig_urdf(rig_path, names)
         self.body_frame, self.odom_frame = self.rig.body_frame, self.rig.odom_frame
 
+    def _open_tum_sequence(self) -> None:
+        """A TUM RGB-D sequence as downloaded (module docstring): one colour camera ``rgb`` and its registered depth,
+        the body being the colour camera (ground truth: its optical centre in the motion-capture frame)."""
+        truth = self.path / TUM_GROUNDTRUTH_FILE
+        if not truth.is_file():
+            raise InputError(f"{truth}: no such file; a TUM RGB-D sequence's body trajectory is its ground truth")
+        info = self.path / CAMERA_INFO_FILE
+        if not info.is_file():
+            raise InputError(f"{info}: no such file; write the colour camera's calibration as ROS camera_info YAML "
+                             "(TUM's published intrinsics: freiburg1 fx 517.3 fy 516.5 cx 318.6 cy 255.3, plumb_bob "
+                             "0.2624 -0.9531 -0.0054 0.0026 1.1633; freiburg2 520.9 521.0 325.1 249.7, 0.2312 -0.7849 "
+                             "-0.0033 -0.0001 0.9172; freiburg3 535.4 539.2 320.1 247.6, none)")
+        self._trajectory, self._trajectory_file = read_tum_ns(self._inside(truth)), TUM_GROUNDTRUTH_FILE
+        self.cameras = {"rgb": self._camera_stream(self.path / "rgb", False, info=info,
+                                                   table=self._inside(self.path / "rgb.txt"), name="rgb")}
+        self.depth = {}
+        if (self.path / TUM_DEPTH_FILE).is_file() and (self.path / "depth").is_dir():
+            self.depth["rgb"] = self._camera_stream(self.path / "depth", True, info=info,
+                                                    table=self._inside(self.path / TUM_DEPTH_FILE), name="rgb")
+        self.lidars = {}
+        self.topics = [s.topic for group in (self.cameras, self.depth) for s in group.values()]
+        self.rig = FolderRig(None, {"rgb": np.eye(4)}, "rgb", "mocap")
+        self.body_frame, self.odom_frame = self.rig.body_frame, self.rig.odom_frame
+        log.info("%s: a TUM RGB-D sequence: camera rgb (%d frames), depth %s, the body trajectory from %s (the colour "
+                 "camera in the motion-capture frame, %d poses)", self.path, len(self.cameras["rgb"]),
+                 f"({len(self.depth['rgb'])} frames, registered to rgb)" if self.depth else "none",
+                 TUM_GROUNDTRUTH_FILE, len(self._trajectory[0]))
+
     def _inside(self, path: Path) -> Path:
         """``path``, refused when it (through a link) lies outside the folder."""
         if not path.resolve().is_relative_to(self._root):
             raise InputError(f"{path}: links outside the recording folder {self.path}")
         return path
 
-    def _camera_stream(self, d: Path, depth: bool) -> FolderCameraStream:
+    def _camera_stream(self, d: Path, depth: bool, *, info: Path | None = None, table: Path | None = None,
+                       name: str | None = None) -> FolderCameraStream:
+        """The stream of frames folder ``d``; a TUM RGB-D sequence gives its ``info`` (the sequence's
+        camera_info.yaml), ``table`` (rgb.txt, depth.txt) and ``name`` (both streams are the colour camera's)."""
         topic = d.relative_to(self.path).as_posix()
-        info = d / CAMERA_INFO_FILE
+        name = name or d.name
+        info = info or d / CAMERA_INFO_FILE
         if not info.is_file():
             raise InputError(f"{info}: no such file; every {'depth' if depth else 'camera'} folder needs its ROS "
                              "camera_info YAML")
@@ -652,7 +714,7 @@ class RobotFolder:
                                  "0.0002 for TUM RGB-D's 1/5000 m)")
             stated = data.pop(DEPTH_UNIT_KEY, None)
         camera = camera_from_info_yaml(data, str(info))
-        files, stamps = frame_stamps(d, tuple(DEPTH_SUFFIXES) if depth else IMAGE_SUFFIXES)
+        files, stamps = frame_stamps(d, tuple(DEPTH_SUFFIXES) if depth else IMAGE_SUFFIXES, table)
         files = [self._inside(p) for p in files]
         encoding, unit = "", None
         if depth:
@@ -660,10 +722,11 @@ class RobotFolder:
             if len(suffixes) > 1:
                 raise InputError(f"{d}: depth frames in several formats ({', '.join(suffixes)}); keep one")
             encoding = DEPTH_SUFFIXES[suffixes[0]] if suffixes else ""
-            unit = depth_unit(d, info, stated, suffixes[0] if suffixes else "")
+            unit = depth_unit(d, info, stated, suffixes[0] if suffixes else "",
+                              tum=None if table is None else table.name == TUM_DEPTH_FILE)
             if unit is not None:
                 log.info("%s: %s depth, %g m per unit (%s)", topic, suffixes[0], unit.m_per_unit, unit.source)
-        stream = FolderCameraStream(d.name, topic, f"{topic}/{CAMERA_INFO_FILE}", d.name, camera, encoding, depth,
+        stream = FolderCameraStream(name, topic, info.relative_to(self.path).as_posix(), name, camera, encoding, depth,
                                     stamps, tuple(files), depth_unit=unit)
         if files:  # the first frame decodes, at the camera's size; it sets the stream's encoding
             first = self._frame_checked(stream, 0)
@@ -735,7 +798,7 @@ class RobotFolder:
             raise InputError(f"{self.path}: trajectory={source} reads a bag's topics; a folder's trajectory is "
                              f"{TRAJECTORY_FILE} (trajectory=auto)")
         stamps, body_to_odom = self._trajectory
-        return Trajectory(stamps.copy(), body_to_odom.copy(), self.odom_frame, self.body_frame, TRAJECTORY_FILE)
+        return Trajectory(stamps.copy(), body_to_odom.copy(), self.odom_frame, self.body_frame, self._trajectory_file)
 
     # ------------------------------------------------------------------ lifetime
 

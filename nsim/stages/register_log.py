@@ -108,6 +108,9 @@ def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
         if actual != kind:
             raise InputError(f"register-log {'--poses ' if name == 'poses' else ''}{spec}: a {actual} artifact; "
                              f"expected a {kind} artifact ({how})")
+        if name == "recording" and not json.loads(store.get(art_id).file("recording.json").read_text())["streams"]:
+            raise InputError(f"register-log {spec}: a trajectory-only recording (no sensor streams): nothing to "
+                             f"register; nsim simulate drives a robot along it (robot.trajectory: {{recording: {spec}}})")
         out[name] = art_id
     return Inputs(**out)
 

@@ -119,7 +119,7 @@ SCHEMA_BAD = [
     (
         "trajectory-two-forms",
         _set(("robot", "trajectory"), {"tum": "a.tum", "waypoints_m": [[1, 1]]}),
-        "robot.trajectory: expected an object with exactly one of the keys poses, waypoints_m, tum, walk_loop",
+        "robot.trajectory: expected an object with exactly one of the keys poses, recording, registration, waypoints_m, tum, walk_loop",
     ),
     (
         "speed",
