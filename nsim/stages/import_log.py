@@ -186,7 +186,8 @@ def body_trajectory(rl, inputs: Inputs, cfg: Config, streams: list):
     except InputError as exc:
         if streams:
             raise
-        raise InputError(f"{rl.name}: no camera, depth or LiDAR stream and no trajectory ({exc}; topics: "
+        why = str(exc).removeprefix(f"bag {rl.name}: ").removeprefix(f"{rl.name}: ")
+        raise InputError(f"{rl.name}: no camera, depth or LiDAR stream and no trajectory ({why}; topics: "
                          f"{name_list(sorted(rl.topics))})") from None
 
 

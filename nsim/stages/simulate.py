@@ -187,7 +187,7 @@ def resolve_trajectory(spec: ScenarioSpec, store=None, robot_trajectory: str | N
     if len(stamps) != len(tum):
         raise spec.error(where, f"{kind} {art_id[:12]}: {ns_name} and {tum_name} disagree")
     if kind == "recording":
-        log.info("simulate: the robot drives along recording %s (%d poses); its odometry frame is taken as the "
+        log.warning("simulate: the robot drives along recording %s (%d poses); its odometry frame is taken as the "
                  "scene's world (register-log places a recording with cameras: {registration: REF})", art_id[:12],
                  len(stamps))
     return with_recorded_trajectory(spec, stamps, tum.positions_xyz, tum.orientations_quat_wxyz,
