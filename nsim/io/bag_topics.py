@@ -3,7 +3,8 @@
 Bags are opened with ``rosbags.highlevel.AnyReader``: one or more ROS 1 ``.bag`` files (a split
 recording), or one ROS 2 bag directory (``metadata.yaml`` with ``.db3`` or ``.mcap``; the storage
 file itself is accepted too). Message types come from the bag's own definitions, or from ROS 2
-Humble's where a ROS 2 bag has none. Nothing is executed or unpickled.
+Humble's where a ROS 2 bag has none. Nothing is executed or unpickled. A bag that does not open
+(not a bag, a ROS 1 bag cut short without its index) is one line naming it.
 """
 
 from __future__ import annotations
@@ -63,5 +64,10 @@ def open_bag_reader(paths: list[Path], name: str) -> AnyReader:
         reader = AnyReader(paths, default_typestore=TYPESTORE)
         reader.open()
     except (AnyReaderError, OSError, ValueError, KeyError) as exc:
-        raise InputError(f"bag {name}: not a readable ROS bag: {' '.join(str(exc).split())}") from None
+        reason = " ".join(str(exc).split())
+        hint = ""
+        if all(p.suffix == ".bag" for p in paths) and "index" in reason.lower():
+            hint = ("; a ROS 1 bag cut short (a recording that did not close, a partial copy) has no index: "
+                    "`rosbag reindex` rebuilds it")
+        raise InputError(f"bag {name}: not a readable ROS bag: {reason}{hint}") from None
     return reader

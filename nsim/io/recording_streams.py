@@ -78,8 +78,8 @@ ROS_DEPTH_UNITS = {"16UC1": DepthUnit(0.001, "16UC1: millimetres (ROS REP 118)")
 
 
 def depth_unit_of(stream: CameraStreamInfo) -> DepthUnit:
-    """The unit of a depth stream's frames: the one its reader stated (``stream.depth_unit``, a folder's), else
-    the ROS convention of its encoding."""
+    """The unit of a depth stream's frames: the one its reader stated (``stream.depth_unit``: a folder's, or a
+    RealSense SDK bag's own, :mod:`nsim.io.realsense`), else the ROS convention of its encoding."""
     unit = getattr(stream, "depth_unit", None)
     if unit is not None:
         return unit
@@ -92,11 +92,13 @@ def depth_unit_of(stream: CameraStreamInfo) -> DepthUnit:
 class CameraStream(CameraStreamInfo):
     """One camera (or depth camera) topic (:class:`CameraStreamInfo`). Frames are decoded on demand by
     :meth:`nsim.io.robot_log.RobotLog.image`. msgtype: the topic's message type; stamps_from_bag: how many stamps came
-    from the bag's receive times; messages: where each frame's message is."""
+    from the bag's receive times; messages: where each frame's message is; depth_unit: a depth stream's unit where
+    the bag states it (a RealSense SDK bag), None where its encoding's convention holds (:func:`depth_unit_of`)."""
 
     msgtype: str
     stamps_from_bag: int
     messages: MessageIndex
+    depth_unit: DepthUnit | None = None
 
 
 @dataclass(frozen=True)
@@ -140,11 +142,26 @@ class Odometry:
 
 
 @dataclass(frozen=True)
+class PoseTopic:
+    """A geometry_msgs/PoseStamped (or PoseWithCovarianceStamped) topic taken as the body's path, read whole.
+
+    stamps_ns: (N,) int64; body_to_frame: (N, 4, 4), the body's pose in ``frame_id`` (the header's frame:
+    the odom frame).
+    """
+
+    topic: str
+    frame_id: str
+    stamps_ns: np.ndarray
+    body_to_frame: np.ndarray
+    stamps_from_bag: int
+
+
+@dataclass(frozen=True)
 class Trajectory:
     """The body's motion: stamps_ns (N,) int64, body_to_odom (N, 4, 4) (the body's pose in odom).
 
-    source: where it came from (``tf: odom -> body`` or ``odometry /odom``); body_frame is empty when
-    an Odometry without child_frame_id gave the poses and no body frame is known."""
+    source: where it came from (``tf: odom -> body``, ``odometry /odom`` or ``pose /pose``); body_frame is empty
+    when an Odometry without child_frame_id or a PoseStamped topic gave the poses and no body frame is known."""
 
     stamps_ns: np.ndarray
     body_to_odom: np.ndarray

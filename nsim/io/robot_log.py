@@ -14,7 +14,11 @@
 :func:`nsim.io.header_stamps.associate`.)
 
 A bag is one or more ROS 1 ``.bag`` files (a split recording) or one ROS 2 bag directory, read
-with ``rosbags`` (:mod:`nsim.io.bag_topics`); nothing is executed or unpickled.
+with ``rosbags`` (:mod:`nsim.io.bag_topics`); nothing is executed or unpickled. A RealSense SDK bag
+(realsense-viewer's, rs-record's) is read in its own layout (:mod:`nsim.io.realsense`: its cameras,
+extrinsics as static links to its reference stream, which is the body, and each depth stream's
+stated unit in ``CameraStream.depth_unit``). A bag may hold no camera, depth or LiDAR stream at all
+(a trajectory alone).
 
 Topics come from a :class:`~nsim.io.topic_selection.Selection`, or by message type where it leaves
 a group out (:mod:`nsim.io.topic_selection` says how). Stamps are the messages' header stamps in
@@ -25,16 +29,18 @@ and trajectory a log returns are the dataclasses of :mod:`nsim.io.recording_stre
 **Frames.** Frame ids lose a leading ``/`` (ROS 1's tf allowed one; tf2 does not). /tf and
 /tf_static become ``log.tf``, a :class:`~nsim.io.tf_tree.TfTree` (how links chain and how moving
 ones are sampled). :meth:`RobotLog.sensor_to_body` chains /tf_static links;
-:meth:`RobotLog.body_trajectory` takes odom -> body from /tf or else from the Odometry topic. An
-Odometry whose ``child_frame_id`` is empty (ROS 1 Stage's ground truth) is taken to give the body's
-pose (a warning says so).
+:meth:`RobotLog.body_trajectory` takes odom -> body from /tf, else from the Odometry topic, else
+from the PoseStamped topic (``log.pose``, :mod:`nsim.io.log_trajectory`). An Odometry whose
+``child_frame_id`` is empty (ROS 1 Stage's ground truth) is taken to give the body's pose (a warning
+says so), as a PoseStamped's always does.
 
 **Errors.** Bad input raises :class:`~nsim.errors.InputError` with one line that names the bag,
 the topic and, where one message is at fault, its index in the topic (0-based, bag order): a topic
 that is not in the bag (with the ones of the wanted type that are), an image topic without
 CameraInfo, an unknown encoding, an image whose size differs from its CameraInfo, a compressed
 image that does not decode, a PointCloud2 without x/y/z, stamps that do not increase, a missing tf
-link, a bad quaternion.
+link, a bad quaternion, a depth stream whose unit nothing states, a trajectory of one pose, a bag cut
+short (ROS 1: no index; while reading: the topics read).
 
 Everything here returns new arrays: nothing read is modified in place.
 """
@@ -49,17 +55,23 @@ from typing import Any
 
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 
 from nsim.errors import InputError, name_list
 from nsim.geometry.cameras import Camera
+from nsim.io import log_trajectory, realsense
 from nsim.io.bag_topics import TopicSummary, bag_paths, open_bag_reader
 from nsim.io.header_stamps import HeaderStamps
 from nsim.io.recording_streams import (
     BODY_FRAMES,
+    ROS_DEPTH_UNITS,
     CameraStream,
+    DepthUnit,
     LidarStream,
     MessageIndex,
     Odometry,
+    PoseTopic,
     Trajectory,
 )
 from nsim.io.rosbag import (
@@ -83,7 +95,9 @@ COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 ODOMETRY = "nav_msgs/msg/Odometry"
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+_READER_ERRORS = (Ros1ReaderError, Ros2ReaderError)
 
 
 class _Topic:
@@ -101,6 +115,7 @@ class _Topic:
         self.encoding: str | None = None
         self.frame_id: str | None = None
         self.calibration: dict[bool, Camera] = {}  # CameraInfo topics: rectified -> camera of message 0
+        self.units: list[float] = []  # RealSense depth images: the depth_units after each message's data
 
     def place(self, connection: int, log_time_ns: int) -> None:
         t, rank = self.last.get(connection, (None, -1))
@@ -120,8 +135,9 @@ class RobotLog:
 
     Attributes, all read when it opens: ``paths``; ``topics`` (name -> :class:`TopicSummary`);
     ``cameras`` and ``depth`` (name -> :class:`CameraStream`); ``lidars`` (name ->
-    :class:`LidarStream`); ``odometry`` (:class:`Odometry` or None); ``tf`` (:class:`TfTree`);
-    ``body_frame`` and ``odom_frame`` (str or None). Image and cloud data stay in the bag until
+    :class:`LidarStream`); ``odometry`` (:class:`Odometry` or None); ``pose`` (:class:`PoseTopic` or
+    None); ``tf`` (:class:`TfTree`); ``body_frame`` and ``odom_frame`` (str or None); ``realsense``
+    (a RealSense SDK bag). Image and cloud data stay in the bag until
     :meth:`image` / :meth:`images` / :meth:`cloud` / :meth:`clouds` read them.
     """
 
@@ -136,6 +152,7 @@ class RobotLog:
             self._connections = {name: list(info.connections) for name, info in self._reader.topics.items()}
             self.topics = {name: TopicSummary(name, info.msgtype, info.msgcount)
                            for name, info in self._reader.topics.items()}
+            self.realsense = realsense.is_realsense_bag(self.topics)
             self._load(selection or Selection())
         except BaseException:
             self._reader.close()
@@ -164,15 +181,32 @@ class RobotLog:
         return topic
 
     def _deserialize(self, raw: bytes, msgtype: str, topic: str, index: int):
+        return self._decode(raw, msgtype, topic, index)[0]
+
+    def _decode(self, raw: bytes, msgtype: str, topic: str, index: int) -> tuple[Any, float | None]:
+        """The message, and the float32 librealsense appends to a ROS 1 Image (its depth_units) or None."""
         try:
-            return self._reader.deserialize(raw, msgtype)
+            return self._reader.deserialize(raw, msgtype), None
         except (AnyReaderError, KeyError, ValueError, IndexError) as exc:
+            if msgtype == IMAGE and not self._reader.is2 and self.realsense and len(raw) > 4:
+                try:
+                    return self._reader.deserialize(raw[:-4], msgtype), float(np.frombuffer(raw[-4:], "<f4")[0])
+                except (AnyReaderError, KeyError, ValueError, IndexError):
+                    pass
             raise InputError(f"{self._where(topic, index)}: does not deserialize as {msgtype}: {exc}") from None
 
     def _messages(self, connections: list, start: int | None = None, stop: int | None = None) -> Iterator:
         if self._reader is None:
             raise RuntimeError(f"RobotLog {self.name}: closed")
-        return self._reader.messages(connections=connections, start=start, stop=stop)
+        messages = self._reader.messages(connections=connections, start=start, stop=stop)
+        try:
+            yield from messages
+        except (AnyReaderError, OSError, ValueError, KeyError, IndexError) + _READER_ERRORS as exc:
+            topics = name_list(sorted({c.topic for c in connections}))
+            raise InputError(f"bag {self.name}: cut short or damaged while reading {topics}: "
+                             f"{' '.join(str(exc).split())}") from None
+        finally:
+            messages.close()
 
     def _first(self, topic: str):
         """The first message of ``topic``, deserialized, or None when it has none."""
@@ -194,43 +228,59 @@ class RobotLog:
 
     def _sibling_info(self, image_topic: str) -> tuple[str | None, str, int]:
         """The CameraInfo topic of an image topic: ``camera_info`` in its namespace, or the only
-        CameraInfo topic there (``/a/b/image/compressed`` looks in ``/a/b/``). Returns it (or
-        None), the namespace and how many CameraInfo topics it has."""
+        CameraInfo topic there (``/a/b/image/compressed`` looks in ``/a/b/``), else ``info/camera_info``
+        beside the namespace (``/a/b/data`` -> ``/a/info/camera_info``: a RealSense SDK bag's). Returns it
+        (or None), the namespace and how many CameraInfo topics it has."""
         namespace = self._base(image_topic).rsplit("/", 1)[0]
         siblings = [t for t in self._of_type([CAMERA_INFO]) if t.rsplit("/", 1)[0] == namespace]
         if namespace + "/camera_info" in siblings:
             return namespace + "/camera_info", namespace, len(siblings)
+        beside = namespace.rsplit("/", 1)[0] + "/info/camera_info"
+        if not siblings and self.topics.get(beside, TopicSummary(beside, None, 0)).msgtype == CAMERA_INFO:
+            return beside, namespace, 0
         return (siblings[0] if len(siblings) == 1 else None), namespace, len(siblings)
 
-    def _default_cameras(self) -> tuple[dict[str, CameraTopics], dict[str, CameraTopics]]:
+    def _default_cameras(self, named: set[str], colour: bool, depth: bool,
+                         ) -> tuple[dict[str, CameraTopics], dict[str, CameraTopics]]:
+        """The default cameras (if ``colour``) and depth cameras (if ``depth``): image topics with a CameraInfo,
+        but none the selection names (``named``), and warnings only for topics a wanted group would take."""
         found: dict[str, tuple[str, str, bool]] = {}  # topic -> (topic that names it, info topic, is depth)
         for topic in self._of_type([IMAGE, COMPRESSED_IMAGE]):
             compressed = self.topics[topic].msgtype == COMPRESSED_IMAGE
             last = topic.rsplit("/", 1)[-1]
             base = self._base(topic)
+            if topic in named or base in named:
+                continue
             if base != topic and self.topics.get(base, TopicSummary(base, None, 0)).msgtype == IMAGE:
                 continue  # the raw topic is read instead
             first = self._first(topic)
             if compressed and (last == "compressedDepth" or
                                (first is not None and "compresseddepth" in str(first.format).lower())):
-                log.warning("%s: compressedDepth images are not read; skipped", self._where(topic))
+                if depth:
+                    log.warning("%s: compressedDepth images are not read; skipped", self._where(topic))
+                continue
+            rs = realsense.stream_of(topic) if self.realsense else None  # RealSense: Depth_N, whatever the encoding
+            is_depth = rs.is_depth if rs else not compressed and first is not None and first.encoding in DEPTH_ENCODINGS
+            if not (depth if is_depth else colour):
                 continue
             info, namespace, _ = self._sibling_info(topic)
             if info is None:
                 log.warning("%s: no CameraInfo topic in %s/; skipped (name it in the selection to read it)",
                             self._where(topic), namespace)
                 continue
-            is_depth = not compressed and first is not None and first.encoding in DEPTH_ENCODINGS
             found[topic] = (base, info, is_depth)
         out: tuple[dict[str, CameraTopics], dict[str, CameraTopics]] = ({}, {})
         for group, want_depth in zip(out, (False, True), strict=True):
-            names = default_stream_names({t: base for t, (base, _, d) in found.items() if d == want_depth})
+            topics = {t: base for t, (base, _, d) in found.items() if d == want_depth}
+            names = (self.realsense and realsense.default_names(topics)) or default_stream_names(topics)
             for topic, name in names.items():
                 group[name] = CameraTopics(topic, found[topic][1])
         return out
 
-    def _resolve(self, sel: Selection) -> tuple[dict, dict, dict, str | None, str | None, str | None]:
-        default_colour, default_depth = self._default_cameras() if sel.cameras is None or sel.depth is None else ({}, {})
+    def _resolve(self, sel: Selection) -> tuple[dict, dict, dict, str | None, str | None, str | None, str | None]:
+        named = {e.image for group in (sel.cameras, sel.depth) if group is not None for e in group.values()}
+        default_colour, default_depth = self._default_cameras(named, sel.cameras is None, sel.depth is None) \
+            if sel.cameras is None or sel.depth is None else ({}, {})
         cameras = dict(default_colour if sel.cameras is None else sel.cameras)
         depth = dict(default_depth if sel.depth is None else sel.depth)
         for group_name, group in (("cameras", cameras), ("depth", depth)):
@@ -263,16 +313,24 @@ class RobotLog:
             if len(found) > 1:
                 log.warning("bag %s: several Odometry topics (%s); none read (choose one: odometry: TOPIC)",
                             self.name, ", ".join(found))
+        if sel.pose is not None:
+            pose = self._require(sel.pose, POSE_TYPES, "pose")
+        else:
+            found = [t for t in self._of_type(POSE_TYPES) if "goal" not in t.lower()]
+            pose = found[0] if len(found) == 1 and not self._of_type([ODOMETRY]) else None
+            if len(found) > 1 and not self._of_type([ODOMETRY]):
+                log.warning("bag %s: several PoseStamped topics (%s); none read (choose one: pose: TOPIC)",
+                            self.name, name_list(found))
         tf = self._require(sel.tf, TF_TYPES, "tf") if sel.tf else (
             "/tf" if self.topics.get("/tf", TopicSummary("", None, 0)).msgtype in TF_TYPES else None)
         tf_static = self._require(sel.tf_static, TF_TYPES, "tf_static") if sel.tf_static else (
             "/tf_static" if self.topics.get("/tf_static", TopicSummary("", None, 0)).msgtype in TF_TYPES else None)
-        return cameras, depth, lidar, odometry, tf, tf_static
+        return cameras, depth, lidar, odometry, pose, tf, tf_static
 
     # ------------------------------------------------------------------ the pass over the bag
 
     def _load(self, sel: Selection) -> None:
-        cameras, depth, lidar, odometry_topic, tf_topic, tf_static_topic = self._resolve(sel)
+        cameras, depth, lidar, odometry_topic, pose_topic, tf_topic, tf_static_topic = self._resolve(sel)
         gather: dict[str, _Topic] = {}
         kinds: dict[str, str] = {}
         info_modes: dict[str, set[bool]] = {}  # CameraInfo topic -> read as rectified, as raw, or both
@@ -284,6 +342,8 @@ class RobotLog:
         kinds.update({topic: "points" for topic in lidar.values()})
         if odometry_topic:
             kinds[odometry_topic] = "odometry"
+        if pose_topic:
+            kinds[pose_topic] = "pose"
         if tf_topic:
             kinds[tf_topic] = "tf"
         if tf_static_topic:
@@ -293,6 +353,7 @@ class RobotLog:
         conn_index = {(c.id, id(c.owner)): k for topic in kinds for k, c in enumerate(self._connections[topic])}
         counts = dict.fromkeys(kinds, 0)
         odom: dict[str, list] = {"pose": [], "linear": [], "angular": []}
+        path: list[np.ndarray] = []  # the pose topic's poses
         static: dict[str, StaticLink] = {}
         moving: dict[tuple[str, str], tuple[HeaderStamps, list[np.ndarray]]] = {}
         connections = [c for topic in kinds for c in self._connections[topic]]
@@ -301,16 +362,17 @@ class RobotLog:
             i = counts[topic]
             counts[topic] += 1
             where = self._where(topic, i)
-            msg = self._deserialize(raw, conn.msgtype, topic, i)
             g = gather[topic]
             kind = kinds[topic]
-            if kind in ("image", "points", "odometry"):
+            msg, units = self._decode(raw, conn.msgtype, topic, i)
+            if kind in ("image", "points", "odometry", "pose"):
                 g.place(conn_index[(conn.id, id(conn.owner))], log_time)
                 g.stamps.add(stamp_ns(msg.header), log_time, where)
                 if g.first is None:
                     g.first, g.frame_id = msg, msg.header.frame_id.lstrip("/")
             if kind == "image" and conn.msgtype == IMAGE:
                 self._check_image(g, msg, where)
+                g.units.append(units or 0.0)
             elif kind == "info":
                 if g.first is None:
                     g.first = msg
@@ -333,6 +395,11 @@ class RobotLog:
                 tw = msg.twist.twist
                 odom["linear"].append([tw.linear.x, tw.linear.y, tw.linear.z])
                 odom["angular"].append([tw.angular.x, tw.angular.y, tw.angular.z])
+            elif kind == "pose":
+                if msg.header.frame_id.lstrip("/") != g.frame_id:
+                    raise InputError(f"{where}: frame {msg.header.frame_id!r} differs from the first message's "
+                                     f"{g.first.header.frame_id!r}")
+                path.append(_pose(getattr(msg.pose, "pose", msg.pose), where))  # PoseStamped, PoseWithCovarianceStamped
             elif kind in ("tf", "tf_static"):
                 for tr in msg.transforms:
                     parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
@@ -347,6 +414,11 @@ class RobotLog:
                     if stamps.add(stamp_ns(tr.header), log_time, f"{where} ({parent} -> {child})", strict=False):
                         poses.append(pose)
 
+        rs_links, rs_body = realsense.extrinsic_links({  # a RealSense SDK bag's extrinsics, and its body frame
+            t: _pose(m, self._where(t, 0)) for t in self._of_type([realsense.TRANSFORM])
+            if (m := self._first(t)) is not None
+        }) if self.realsense else ([], None)
+        static |= {link.child: link for link in rs_links if link.child not in static}
         self.tf = TfTree(tuple(static.values()), tuple(
             MovingLink(p, c, np.array(s.stamps, np.int64), np.array(poses).reshape(-1, 4, 4))
             for (p, c), (s, poses) in moving.items()))
@@ -366,15 +438,36 @@ class RobotLog:
                 g.first.child_frame_id.lstrip("/") if g.first else "", np.array(g.stamps.stamps, np.int64),
                 np.array(odom["pose"]).reshape(-1, 4, 4), np.array(odom["linear"], np.float64).reshape(-1, 3),
                 np.array(odom["angular"], np.float64).reshape(-1, 3), g.stamps.from_bag)
+        self.pose = None
+        if pose_topic:
+            g = gather[pose_topic]
+            self._warn_bag_stamps(g)
+            self.pose = PoseTopic(pose_topic, g.frame_id or "", np.array(g.stamps.stamps, np.int64),
+                                  np.array(path).reshape(-1, 4, 4), g.stamps.from_bag)
         frames = self.tf.frames
         self.body_frame = sel.body_frame or (self.odometry.child_frame_id if self.odometry and
                                              self.odometry.child_frame_id else None) or next(
-            (f for f in BODY_FRAMES if f in frames), None)
+            (f for f in BODY_FRAMES if f in frames), None) or rs_body
         self.odom_frame = sel.odom_frame or (self.odometry.frame_id if self.odometry and self.odometry.frame_id
-                                             else None) or ("odom" if "odom" in frames else None)
+                                             else None) or ("odom" if "odom" in frames else None) or (
+            self.pose.frame_id if self.pose and self.pose.frame_id else None)
         if self.odometry is not None and len(self.odometry.stamps_ns) and not self.odometry.child_frame_id:
             log.warning("%s: child_frame_id is empty; its poses are taken as the body's (body frame: %s)",
                         self._where(self.odometry.topic), self.body_frame or "unnamed")
+
+    def _depth_unit(self, name: str, entry: CameraTopics, g: _Topic) -> DepthUnit | None:
+        """A depth Image stream's unit where the bag states it (RealSense), None where REP 118 does; InputError for
+        an encoding whose unit nothing states."""
+        rs = realsense.stream_of(entry.image) if self.realsense else None
+        if rs is not None and rs.is_depth and g.encoding in ("mono16", "16UC1"):
+            topic = rs.depth_units_topic
+            values = [float(self._deserialize(raw, c.msgtype, topic, i).data) for i, (c, _, raw) in enumerate(
+                self._messages(self._connections[topic]))] if topic in self._of_type([realsense.FLOAT32]) else None
+            return realsense.depth_unit(rs, self._where(entry.image), g.units, values)
+        if g.encoding == "mono16":
+            raise InputError(f"{self._where(entry.image, 0)}: depth.{name} is mono16, a gray image without a depth "
+                             "unit (depth is 16UC1 millimetres or 32FC1 metres, REP 118)")
+        return None
 
     def _check_image(self, g: _Topic, msg, where: str) -> None:
         """Encoding known and constant, size constant (the pixels are checked when decoded)."""
@@ -411,10 +504,12 @@ class RobotLog:
             raise InputError(f"{self._where(entry.image, 0)}: the image is {g.size[0]}x{g.size[1]}, its CameraInfo "
                              f"({entry.info}) says {camera.width}x{camera.height}")
         self._warn_bag_stamps(g)
-        stream = CameraStream(name=name, topic=entry.image, info_topic=entry.info,
-                              frame_id=g.frame_id or (info.first.header.frame_id.lstrip("/")), camera=camera,
+        rs = realsense.stream_of(entry.image) if self.realsense else None
+        frame_id = g.frame_id or info.first.header.frame_id.lstrip("/") or (rs.frame_id if rs else "")
+        stream = CameraStream(name=name, topic=entry.image, info_topic=entry.info, frame_id=frame_id, camera=camera,
                               encoding=encoding, is_depth=depth, stamps_ns=np.array(g.stamps.stamps, np.int64),
-                              msgtype=msgtype, stamps_from_bag=g.stamps.from_bag, messages=g.index())
+                              msgtype=msgtype, stamps_from_bag=g.stamps.from_bag, messages=g.index(),
+                              depth_unit=self._depth_unit(name, entry, g) if depth else None)
         if msgtype == COMPRESSED_IMAGE and len(stream):
             self._frame_checked(stream, g.first, 0)  # the first frame decodes, at the camera's size
         return stream
@@ -448,7 +543,8 @@ class RobotLog:
         if stream.msgtype == COMPRESSED_IMAGE:
             image = read_compressed_image(msg, where=where)
         else:
-            image = read_image(msg, depth_m=stream.is_depth, where=where)
+            unit = stream.depth_unit or ROS_DEPTH_UNITS["16UC1"]
+            image = read_image(msg, depth_m=stream.is_depth, units_per_m=unit.units_per_m, where=where)
         cam = stream.camera
         if image.shape[:2] != (cam.height, cam.width):
             raise InputError(f"{where}: the image is {image.shape[1]}x{image.shape[0]}, its CameraInfo "
@@ -497,73 +593,58 @@ class RobotLog:
         return self.tf.sensor_to_body(frame_id, self._body(body_frame))
 
     def body_trajectory(self, source: str = "auto") -> Trajectory:
-        """The body's poses in the odom frame over time.
+        """The body's poses in the odom frame over time (:mod:`nsim.io.log_trajectory`).
 
-        source: ``tf`` (the path from body to odom on /tf and /tf_static: :meth:`TfTree.trajectory`),
-        ``odometry`` (the Odometry topic at its stamps; where its frames differ from odom_frame /
-        body_frame they are joined through tf, moving links interpolated and stamps outside their
-        span dropped: :meth:`TfTree.transforms_at`; an Odometry without child_frame_id is taken to
-        give the body's pose), or ``auto``: tf where it has a path, else odometry (InputError with
-        both reasons when neither works).
+        source: ``tf`` (the path from body to odom on /tf and /tf_static), ``odometry`` (the Odometry topic; an
+        Odometry without child_frame_id gives the body's pose), ``pose`` (the PoseStamped topic: the body's pose in
+        its header's frame), or ``auto``: tf where it has a path, else odometry, else pose (InputError with every
+        reason when none works, and one line saying how to give a trajectory when the bag has none of them). A
+        trajectory of fewer than two poses is InputError.
         """
-        if source not in ("auto", "tf", "odometry"):
-            raise ValueError(f"source: expected auto, tf or odometry, got {source!r}")
-        tf_error = None
-        if source in ("auto", "tf"):
-            try:
-                return self._tf_trajectory()
-            except InputError as exc:
-                if source == "tf" or self.odometry is None:
-                    raise
-                tf_error = exc
-        try:
-            trajectory = self._odometry_trajectory()
-        except InputError as exc:
-            if tf_error is None:
-                raise
-            raise InputError(f"{exc} (and from tf: {tf_error})") from None
-        if tf_error is not None:
-            log.info("bag %s: trajectory from %s (%s)", self.name, self.odometry.topic, tf_error)
-        return trajectory
+        sources = {"tf": self._tf_trajectory, "odometry": self._odometry_trajectory, "pose": self._pose_trajectory}
+        if source not in ("auto", *sources):
+            raise ValueError(f"source: expected auto, tf, odometry or pose, got {source!r}")
+        if source != "auto":
+            return sources[source]()
+        if not self.tf.moving and self.odometry is None and self.pose is None:
+            raise InputError(f"bag {self.name}: no trajectory (no moving /tf link, no Odometry or PoseStamped topic "
+                             "read): give the body's poses with nsim import-log BAG --trajectory FILE.tum, or name a "
+                             "topic in the selection (odometry: TOPIC or pose: TOPIC)")
+        errors: list[tuple[str, InputError]] = []
+        for name in ("tf", "odometry", "pose"):
+            if name == "tf" or getattr(self, name) is not None:
+                try:
+                    trajectory = sources[name]()
+                except InputError as exc:
+                    errors.append((name, exc))
+                    continue
+                if errors:
+                    log.info("bag %s: trajectory from %s (%s)", self.name, trajectory.source,
+                             "; ".join(f"from {n}: {e}" for n, e in errors))
+                return trajectory
+        (_, last), before = errors[-1], errors[:-1]
+        raise InputError(f"{last} (and " + "; ".join(f"from {n}: {e}" for n, e in before) + ")") from None
 
     def _tf_trajectory(self) -> Trajectory:
-        body = self._body(None)
-        odom = self.odom_frame
-        if not odom:
+        if not self.odom_frame:
             raise InputError(f"bag {self.name}: the odom frame is unknown: give odom_frame in the selection")
-        stamps, body_to_odom = self.tf.trajectory(odom, body)
-        return Trajectory(stamps, body_to_odom, odom, body, f"tf: {odom} -> {body}")
+        return log_trajectory.from_tf(self.tf, self.odom_frame, self._body(None), self.name)
 
     def _odometry_trajectory(self) -> Trajectory:
         o = self.odometry
         if o is None:
             raise InputError(f"bag {self.name}: no Odometry topic to take the trajectory from")
-        odom = self.odom_frame or o.frame_id
-        frame = o.frame_id or odom  # no frame_id: the poses are taken to be in odom
-        if o.child_frame_id:
-            body = self._body(None)
-            joins = [(body, o.child_frame_id), (frame, odom)]
-        else:  # the poses of an unnamed frame: the body's (warned when read)
-            body = self.body_frame or ""
-            joins = [(frame, odom)]
-        joins = [(a, b) for a, b in joins if a != b]
-        kept = np.ones(len(o.stamps_ns), dtype=bool)
-        for a, b in joins:
-            kept &= self.tf.transforms_at(a, b, o.stamps_ns)[0]
-        if not kept.any() and len(kept):
-            raise InputError(f"bag {self.name}: no stamp of {o.topic} lies within the tf links that join "
-                             f"{o.frame_id!r} -> {o.child_frame_id!r} to {odom!r} -> {body!r}")
-        stamps = o.stamps_ns[kept]
+        body = self._body(None) if o.child_frame_id else self.body_frame or ""  # no child: the body's poses
+        return log_trajectory.from_topic(self.tf, "odometry", o.topic, o.frame_id, o.child_frame_id, o.stamps_ns,
+                                         o.child_to_parent, self.odom_frame or o.frame_id, body, self.name)
 
-        def join(a: str, b: str) -> np.ndarray:
-            return self.tf.transforms_at(a, b, stamps)[1] if (a, b) in joins else np.eye(4)
-
-        body_to_child, frame_to_odom = join(body, o.child_frame_id), join(frame, odom)
-        if not kept.all():
-            log.info("bag %s: %d of %d poses of %s lie outside the tf links that join its frames; dropped",
-                     self.name, int((~kept).sum()), len(kept), o.topic)
-        body_to_odom = frame_to_odom @ o.child_to_parent[kept] @ body_to_child
-        return Trajectory(stamps, body_to_odom, odom, body, f"odometry {o.topic}")
+    def _pose_trajectory(self) -> Trajectory:
+        p = self.pose
+        if p is None:
+            raise InputError(f"bag {self.name}: no PoseStamped topic to take the trajectory from (pose: TOPIC in the "
+                             "selection)")
+        return log_trajectory.from_topic(self.tf, "pose", p.topic, p.frame_id, "", p.stamps_ns, p.body_to_frame,
+                                         self.odom_frame or p.frame_id, self.body_frame or "", self.name)
 
     # ------------------------------------------------------------------ lifetime
 

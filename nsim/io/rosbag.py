@@ -394,15 +394,16 @@ def points_message(t_ns: int, frame_id: str, points: np.ndarray, *, height: int 
 # ---------------------------------------------------------------------------- messages -> arrays
 
 
-def read_image(msg, *, depth_m: bool = False, where: str = "image") -> np.ndarray:
+def read_image(msg, *, depth_m: bool = False, units_per_m: float = 1000.0, where: str = "image") -> np.ndarray:
     """Array of a sensor_msgs/Image, honouring ``step`` (row padding) and ``is_bigendian``.
 
     rgb8 and bgr8 -> ``(H, W, 3)`` uint8 **RGB**; mono8 / 8UC1 -> ``(H, W)`` uint8; mono16 /
     16UC1 -> ``(H, W)`` uint16; 32FC1 -> ``(H, W)`` float32. ``depth_m``: a 16-bit image is
-    depth in millimetres (REP 118) and comes back as float32 metres with NaN where it is 0 (no
-    measurement); 32FC1 is metres already; 8-bit images are refused. Bad input (an encoding not
-    listed, rows shorter than the width, too few bytes) raises :class:`InputError` with ``where``
-    at the front of its one line.
+    depth in units of ``1 / units_per_m`` metres (1000: millimetres, REP 118's 16UC1; a RealSense
+    bag states its own, :mod:`nsim.io.realsense`) and comes back as float32 metres (the value
+    divided by ``float32(units_per_m)``) with NaN where it is 0 (no measurement); 32FC1 is metres
+    already; 8-bit images are refused. Bad input (an encoding not listed, rows shorter than the
+    width, too few bytes) raises :class:`InputError` with ``where`` at the front of its one line.
     """
     encoding = msg.encoding
     if encoding not in _IMAGE_LAYOUT:
@@ -431,7 +432,7 @@ def read_image(msg, *, depth_m: bool = False, where: str = "image") -> np.ndarra
         return image
     if code != "u2":
         raise InputError(f"{where}: {encoding} is not a depth encoding (16UC1 millimetres or 32FC1 metres)")
-    depth = image.astype(np.float32) / np.float32(1000.0)
+    depth = image.astype(np.float32) / np.float32(units_per_m)
     depth[image == 0] = np.nan
     return depth
 
@@ -476,12 +477,19 @@ def camera_from_info(msg, *, rectified: bool = False, where: str = "camera_info"
     (exact for pixel centres; ``image_geometry`` uses ``c / b``, 0.25 px apart at ``b = 2``),
     size ``// b``. Bad input (uncalibrated K of zeros, skew, unknown model, coefficients nsim's
     model cannot hold) raises :class:`InputError` starting with ``where``.
+
+    librealsense's names (a RealSense SDK bag's CameraInfo, ``rs2_distortion``) are read too: ``Brown
+    Conrady`` is plumb_bob (the same equations and coefficient order), ``Kannala Brandt4`` equidistant,
+    ``None`` a PINHOLE (its coefficients unused, as librealsense leaves them); ``Modified Brown
+    Conrady`` (tangential terms on the radially distorted point) is plumb_bob only where p1 = p2 = 0,
+    ``Inverse Brown Conrady`` (coefficients that undistort) and ``Ftheta`` only where D is all zero:
+    otherwise one line refuses them, as nsim's models cannot hold them.
     """
-    model = str(msg.distortion_model)
     K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
     D = [float(v) for v in _field(msg, "d")]
     if not np.all(np.isfinite(K)) or not np.all(np.isfinite(D)):
         raise InputError(f"{where}: K or D is not finite")
+    model, D = _ros_distortion_model(str(msg.distortion_model), D, where)
     if not K.any():
         raise InputError(f"{where}: uncalibrated camera (K is all zero)")
     if rectified:
@@ -514,7 +522,7 @@ def camera_from_info(msg, *, rectified: bool = False, where: str = "camera_info"
         cam_model, dist = "OPENCV_FISHEYE", first(4, "equidistant")
     else:
         raise InputError(f"{where}: unknown distortion model {model!r} (nsim reads plumb_bob, rational_polynomial, "
-                         "equidistant)")
+                         "equidistant and librealsense's Brown Conrady, Kannala Brandt4)")
 
     width, height = int(msg.width), int(msg.height)
     roi = msg.roi
@@ -528,6 +536,35 @@ def camera_from_info(msg, *, rectified: bool = False, where: str = "camera_info"
         return Camera(cam_model, width, height, fx, fy, cx, cy, tuple(dist))
     except ValueError as exc:
         raise InputError(f"{where}: {str(exc).replace('Camera.', '')}") from None
+
+
+#: librealsense's distortion names (``rs2_distortion_to_string``), lower case with ``_`` for spaces, as ROS's.
+_REALSENSE_MODELS = ("none", "brown_conrady", "modified_brown_conrady", "inverse_brown_conrady", "ftheta",
+                     "kannala_brandt4")
+
+
+def _ros_distortion_model(model: str, D: list[float], where: str) -> tuple[str, list[float]]:
+    """The ROS model and coefficients a CameraInfo's ``distortion_model`` and ``D`` stand for
+    (librealsense's names mapped, see :func:`camera_from_info`); ROS's own and unknown names come
+    back as they are."""
+    key = "_".join(model.lower().split())
+    if key not in _REALSENSE_MODELS:
+        return model, D
+    if key == "none":
+        return "plumb_bob", []  # no distortion: librealsense does not use the coefficients
+    if key == "brown_conrady":
+        return "plumb_bob", D
+    if key == "kannala_brandt4":
+        return "equidistant", D
+    if key == "modified_brown_conrady" and not any(D[2:4]):
+        return "plumb_bob", D  # without tangential terms it is Brown-Conrady
+    if not any(D):
+        return "plumb_bob", D
+    why = {"modified_brown_conrady": "tangential terms applied to the radially distorted point (p1, p2 not zero)",
+           "inverse_brown_conrady": "coefficients that undistort pixels rather than distort points",
+           "ftheta": "an F-Theta fisheye"}[key]
+    raise InputError(f"{where}: distortion model {model!r} with D = {D} is librealsense's {why}, which nsim's camera "
+                     "models cannot hold (Brown Conrady, Kannala Brandt4 and any model with D all zero are read)")
 
 
 def read_pointcloud(msg, *, where: str = "points") -> np.ndarray:

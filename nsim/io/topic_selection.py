@@ -10,20 +10,29 @@ from YAML, strictly), and the names streams get by default (:func:`default_strea
       front: /front/depth
     lidar: {top: /points}         # name -> PointCloud2 topic
     odometry: /odom               # nav_msgs/Odometry
+    pose: /pose                   # geometry_msgs/PoseStamped or PoseWithCovarianceStamped: the body's path
     tf: /tf                       # default /tf and /tf_static when present
     tf_static: /tf_static
     body_frame: body              # default: the odometry's child frame (if named), else base_link / body / base_footprint
-    odom_frame: odom              # default: the odometry's frame, else odom
+                                  # (a RealSense SDK bag: its reference stream's frame, nsim.io.realsense)
+    odom_frame: odom              # default: the odometry's frame, else odom, else the pose topic's frame
 
 A group left out (or ``null``) gets the defaults by message type: **cameras** and **depth** are the
 Image and CompressedImage topics that have a CameraInfo topic in their namespace (``/a/b/image``
 and ``/a/b/image/compressed`` look in ``/a/b/``: ``camera_info`` there, or the only CameraInfo
-topic there); an Image whose first message is 16UC1 or 32FC1 is depth; a compressed topic whose
-raw topic is in the bag is left to the raw one; images without a CameraInfo and compressedDepth
-topics are skipped with a warning. **lidar**: every PointCloud2 topic. **odometry**: the
-Odometry topic when there is exactly one. Default names are the topic's namespace when its last
+topic there) or else at ``info/camera_info`` beside it (``/a/b/data`` -> ``/a/info/camera_info``,
+a RealSense SDK bag's layout); an Image whose first message is 16UC1 or 32FC1 is depth (in a
+RealSense SDK bag: the ``Depth_N`` streams, :mod:`nsim.io.realsense`); a compressed topic whose raw
+topic is in the bag is left to the raw one; images without a CameraInfo and compressedDepth topics
+are skipped with a warning (never a topic the selection names: a group that names its topics takes
+nothing from the defaults, and the other group's defaults leave those topics alone). **lidar**:
+every PointCloud2 topic. **odometry**: the Odometry topic when there is exactly one (several: none,
+with a warning). **pose**: the PoseStamped or PoseWithCovarianceStamped topic when there is exactly
+one and no Odometry topic (topics named like a goal, ``/goal_pose``, are not taken; several: none,
+with a warning). Default names are the topic's namespace when its last
 part is a generic word (``/front/image`` -> ``front``, ``/velodyne/points`` -> ``velodyne``), the
-whole topic otherwise (``/velodyne_points``), with ``/`` as ``_``. An image topic whose last part
+whole topic otherwise (``/velodyne_points``), with ``/`` as ``_``; a RealSense SDK bag's streams are
+named by their kind (``Color_0`` -> ``color``, ``Infrared_1`` -> ``infrared_1``). An image topic whose last part
 starts with ``image_rect`` is rectified: its camera is the PINHOLE of the CameraInfo's ``P``
 (``rectified: true|false`` overrides the guess); other images use ``K`` and ``D``
 (:func:`nsim.io.rosbag.camera_from_info`).
@@ -63,6 +72,7 @@ class Selection:
     depth: Mapping[str, CameraTopics] | None = None
     lidar: Mapping[str, str] | None = None
     odometry: str | None = None
+    pose: str | None = None
     tf: str | None = None
     tf_static: str | None = None
     body_frame: str | None = None
@@ -76,7 +86,7 @@ class Selection:
             return cls()
         if not isinstance(data, Mapping):
             raise InputError(f"{where}: expected a mapping, got {type(data).__name__}")
-        keys = ("cameras", "depth", "lidar", "odometry", "tf", "tf_static", "body_frame", "odom_frame")
+        keys = ("cameras", "depth", "lidar", "odometry", "pose", "tf", "tf_static", "body_frame", "odom_frame")
         check_keys(data, keys, where)
         out: dict[str, Any] = {}
         for group in ("cameras", "depth"):
@@ -91,7 +101,7 @@ class Selection:
                     entry = entry.get("points")
                 lidar[name] = _topic_name(entry, f"{where}.lidar.{name}")
             out["lidar"] = lidar
-        for key in ("odometry", "tf", "tf_static"):
+        for key in ("odometry", "pose", "tf", "tf_static"):
             if data.get(key) is not None:
                 out[key] = _topic_name(data[key], f"{where}.{key}")
         for key in ("body_frame", "odom_frame"):

@@ -732,6 +732,26 @@ def test_logs_skipped_topics(tmp_path, caplog):
     assert "several Odometry topics (/o1, /o2)" in text
 
 
+def test_named_topics_are_not_warned_about(tmp_path, caplog):
+    """Only topics the defaults would take are warned about as skipped: never one the selection names, and a group
+    the selection names (cameras) brings no warning about its kind of topic while the other (depth) is defaulted."""
+    path = tmp_path / "named"
+    _stream_bag(path, "mcap", [*_camera_msgs(1), ("/debug/image", T0, lambda b: _image(b, T0)),
+                               ("/calib/info", T0, lambda b: _info(b, T0)),
+                               ("/raw/depth", T0, lambda b: depth_message(T0, "cam_optical", np.ones((H, W)),
+                                                                          encoding="16UC1", store=b.store))])
+    named = {"dbg": {"image": "/debug/image", "info": "/calib/info"}}
+    with caplog.at_level(logging.WARNING, logger="nsim.io.robot_log"), RobotLog(path, {"cameras": named}) as log:
+        assert set(log.cameras) == {"dbg"} and log.depth == {}
+    assert "/debug/image" not in caplog.text and "/cam/image" not in caplog.text
+    assert "/raw/depth: no CameraInfo topic in /raw/; skipped" in caplog.text  # the depth defaults' own
+    caplog.clear()
+    named = {"d": {"image": "/raw/depth", "info": "/calib/info"}}
+    with caplog.at_level(logging.WARNING, logger="nsim.io.robot_log"), RobotLog(path, {"depth": named}) as log:
+        assert set(log.depth) == {"d"} and set(log.cameras) == {"cam"}
+    assert "/raw/depth" not in caplog.text and "/debug/image: no CameraInfo topic in /debug/; skipped" in caplog.text
+
+
 def _odom(b, t_ns=T0, frame="odom", child="body", child_to_frame=None):
     m = np.eye(4) if child_to_frame is None else child_to_frame
     q = Rotation.from_matrix(m[:3, :3]).as_quat()
