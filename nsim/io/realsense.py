@@ -34,15 +34,16 @@ The **body frame** is group 0's reference frame of the first device (``RobotLog.
 **Depth units.** A depth image holds integers of a unit the bag states, never guessed (a D400 writes
 0.001 m, an L515 0.00025 m): the ``depth_units`` float that librealsense 2.35 and later append to
 each depth Image (four bytes after ``data``, outside the message's definition: such images are read
-without them and the value kept), else the sensor's ``option/Depth Units/value``. Neither is one
-line naming the option topic. The unit lands in the stream's ``depth_unit``
+without them and the value kept), else the sensor's ``option/Depth Units/value`` (``property`` in
+file format 2). Neither is one line naming the option topic; values that change, or frames and
+option that disagree, are one line too. The unit lands in the stream's ``depth_unit``
 (:func:`nsim.io.recording_streams.depth_unit_of`), so depth frames come back in metres.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +58,7 @@ DEPTH_KIND = "Depth"
 DEPTH_UNITS = "Depth Units"
 TRANSFORM = "geometry_msgs/msg/Transform"
 FLOAT32 = "std_msgs/msg/Float32"
+KEY_VALUE = "diagnostic_msgs/msg/KeyValue"
 _PREFIX = r"/device_(\d+)/sensor_(\d+)/([A-Za-z]+)_(\d+)"
 _IMAGE = re.compile(_PREFIX + r"/image/data$")
 _EXTRINSICS = re.compile("(" + _PREFIX + r")/tf/(\d+)$")
@@ -143,12 +145,32 @@ def extrinsic_links(extrinsics: Mapping[str, np.ndarray]) -> tuple[list[StaticLi
     return links, (references[min(references)] if references else None)
 
 
-def depth_unit(stream: Stream, where: str, frame_units: Sequence[float], option_values: Sequence[float] | None,
+def stated_units(stream: Stream, msgtypes: Mapping[str, str | None], read: Callable[[str], list], bag: str,
+                 ) -> tuple[list, str]:
+    """The Depth Units option of a depth stream's sensor as the bag states it, and where: the Float32 values of
+    ``option/Depth Units/value`` (librealsense also wrote ``Depth_Units``), else the ``Depth Units`` entries of the
+    sensor's ``property`` KeyValue topic (file format 2). ``msgtypes``: the bag's topic -> type; ``read``: a topic's
+    messages; ``bag`` names the bag in errors. No such topic: ``[]`` and the option topic's name."""
+    sensor = f"/device_{stream.device}/sensor_{stream.sensor}"
+    for topic, msgtype in sorted(msgtypes.items()):
+        m = re.fullmatch(re.escape(sensor) + r"/option/([^/]+)/value", topic)
+        if m and msgtype == FLOAT32 and _key(m[1]) == _key(DEPTH_UNITS):
+            return [float(msg.data) for msg in read(topic)], topic
+    topic = sensor + "/property"
+    if msgtypes.get(topic) == KEY_VALUE:
+        values = [msg.value for msg in read(topic) if _key(str(msg.key)) == _key(DEPTH_UNITS)]
+        try:
+            return [float(v) for v in values], topic
+        except ValueError:
+            raise InputError(f"bag {bag}: {topic}: Depth Units {values} is not a number") from None
+    return [], stream.depth_units_topic
+
+
+def depth_unit(stream: Stream, where: str, frame_units: Sequence[float], stated: Sequence[float], option: str,
                ) -> DepthUnit:
     """The unit of a RealSense depth stream (see the module docstring): ``frame_units`` the ``depth_units`` its
-    frames carry (empty for none), ``option_values`` the Float32 values of its sensor's ``Depth Units`` option
-    (None: no such topic). ``where`` names the bag and image topic for the one-line errors."""
-    option = stream.depth_units_topic
+    frames carry (0 for none), ``stated`` the values of its sensor's Depth Units option on topic ``option`` (empty
+    for none, :func:`stated_units`). ``where`` names the bag and image topic for the one-line errors."""
 
     def metres(values: Sequence[float], what: str) -> float:
         found = sorted({_float32_decimal(v) for v in values})
@@ -163,16 +185,18 @@ def depth_unit(stream: Stream, where: str, frame_units: Sequence[float], option_
         if not all(frame_units):
             raise InputError(f"{where}: some frames carry librealsense's depth_units and some do not")
         m = metres(frame_units, "the frames' depth_units")
-        if option_values:
-            stated = metres(option_values, option)
-            if stated != m:
-                raise InputError(f"{where}: the frames' depth_units ({m} m) differ from {option} ({stated} m)")
+        if stated and metres(stated, option) != m:
+            raise InputError(f"{where}: the frames' depth_units ({m} m) differ from {option} ({metres(stated, option)} m)")
         return DepthUnit(m, f"RealSense bag: each depth frame's depth_units ({m} m per unit)")
-    if option_values:
-        m = metres(option_values, option)
+    if stated:
+        m = metres(stated, option)
         return DepthUnit(m, f"RealSense bag: {option} ({m} m per unit)")
     raise InputError(f"{where}: a RealSense depth stream without its unit: no {option} topic and no depth_units in "
                      "the frames (nsim does not guess it: a D400 records 0.001 m, an L515 0.00025 m)")
+
+
+def _key(name: str) -> str:
+    return "_".join(name.replace("_", " ").lower().split())
 
 
 def _float32_decimal(value: float) -> float:

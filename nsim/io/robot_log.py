@@ -460,10 +460,10 @@ class RobotLog:
         an encoding whose unit nothing states."""
         rs = realsense.stream_of(entry.image) if self.realsense else None
         if rs is not None and rs.is_depth and g.encoding in ("mono16", "16UC1"):
-            topic = rs.depth_units_topic
-            values = [float(self._deserialize(raw, c.msgtype, topic, i).data) for i, (c, _, raw) in enumerate(
-                self._messages(self._connections[topic]))] if topic in self._of_type([realsense.FLOAT32]) else None
-            return realsense.depth_unit(rs, self._where(entry.image), g.units, values)
+            stated, topic = realsense.stated_units(rs, {t: s.msgtype for t, s in self.topics.items()}, lambda t: [
+                self._deserialize(raw, c.msgtype, t, i) for i, (c, _, raw) in enumerate(self._messages(self._connections[t]))],
+                self.name)
+            return realsense.depth_unit(rs, self._where(entry.image), g.units, stated, topic)
         if g.encoding == "mono16":
             raise InputError(f"{self._where(entry.image, 0)}: depth.{name} is mono16, a gray image without a depth "
                              "unit (depth is 16UC1 millimetres or 32FC1 metres, REP 118)")
@@ -505,7 +505,7 @@ class RobotLog:
                              f"({entry.info}) says {camera.width}x{camera.height}")
         self._warn_bag_stamps(g)
         rs = realsense.stream_of(entry.image) if self.realsense else None
-        frame_id = g.frame_id or info.first.header.frame_id.lstrip("/") or (rs.frame_id if rs else "")
+        frame_id = rs.frame_id if rs else g.frame_id or info.first.header.frame_id.lstrip("/")  # RealSense: "0" or ""
         stream = CameraStream(name=name, topic=entry.image, info_topic=entry.info, frame_id=frame_id, camera=camera,
                               encoding=encoding, is_depth=depth, stamps_ns=np.array(g.stamps.stamps, np.int64),
                               msgtype=msgtype, stamps_from_bag=g.stamps.from_bag, messages=g.index(),

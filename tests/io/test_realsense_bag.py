@@ -73,11 +73,12 @@ def color_pixels(k: int) -> np.ndarray:
 
 def write_realsense_bag(path: Path, *, n: int = 3, units: float | None = 0.00025, frame_units: float | None = None,
                         depth_encoding: str = "mono16", color_model: str = "Brown Conrady",
-                        color_d=COLOR_D, stream_info: bool = True) -> Path:
+                        color_d=COLOR_D, stream_info: bool = True, units_topic: str = UNITS_TOPIC) -> Path:
     """A bag laid out as librealsense's ros_writer lays it out (one depth and one colour stream, n frames each).
 
     units: the Depth Units option (None: no option topic); frame_units: the depth_units float appended to each
-    depth Image after its data, as librealsense 2.35+ does (None: not appended)."""
+    depth Image after its data, as librealsense 2.35+ does (None: not appended); units_topic: where the option is
+    (``/device_0/sensor_0/property``: file format 2's KeyValue)."""
     writer = Writer1(path)
     writer.open()
     conns: dict[str, object] = {}
@@ -92,8 +93,10 @@ def write_realsense_bag(path: Path, *, n: int = 3, units: float | None = 0.00025
     write("/device_0/info", msg("diagnostic_msgs/msg/KeyValue", key="Name", value="Intel RealSense L515"), static)
     for sensor, name in ((0, "L500 Depth Sensor"), (1, "RGB Camera")):
         write(f"/device_0/sensor_{sensor}/info", msg("diagnostic_msgs/msg/KeyValue", key="Name", value=name), static)
-    if units is not None:
-        write(UNITS_TOPIC, msg("std_msgs/msg/Float32", data=units), static)
+    if units is not None and units_topic.endswith("/property"):
+        write(units_topic, msg("diagnostic_msgs/msg/KeyValue", key="Depth Units", value=str(units)), static)
+    elif units is not None:
+        write(units_topic, msg("std_msgs/msg/Float32", data=units), static)
         write("/device_0/sensor_0/option/Depth Units/description",
               msg("std_msgs/msg/String", data="Number of meters represented by a single depth unit"), static)
     for prefix, k, d, model, encoding in ((DEPTH_PREFIX, DEPTH_K, (0.0,) * 5, "None", depth_encoding),
@@ -104,12 +107,12 @@ def write_realsense_bag(path: Path, *, n: int = 3, units: float | None = 0.00025
         write(prefix + "/info/camera_info", rs_camera_info(k, d, model), static)
     for i in range(n):
         t = T0 + i * TICK
-        depth = image_message(t, "", depth_values(i), encoding="16UC1", store=STORE)
+        depth = image_message(t, "0", depth_values(i), encoding="16UC1", store=STORE)  # librealsense's odd frame id
         depth.encoding = depth_encoding
         tail = b"" if frame_units is None else struct.pack("<f", frame_units)
         write(DEPTH_PREFIX + "/image/data", depth, t, tail)
         write(DEPTH_PREFIX + "/image/metadata", msg("diagnostic_msgs/msg/KeyValue", key="system_time", value=str(t)), t)
-        color = image_message(t + 1000, "", color_pixels(i), encoding="rgb8", store=STORE)
+        color = image_message(t + 1000, "0", color_pixels(i), encoding="rgb8", store=STORE)
         write(COLOR_PREFIX + "/image/data", color, t + 1000)
         if i == 0:  # ros_writer writes each stream's extrinsics once, with its first frame, at the static time
             write(DEPTH_PREFIX + "/tf/0", transform(np.eye(4)), static)
@@ -172,6 +175,15 @@ def test_realsense_frame_depth_units(tmp_path):
     path = write_realsense_bag(tmp_path / "both.bag", units=0.001, frame_units=0.00025)
     with pytest.raises(InputError, match="differ from"):
         RobotLog(path)
+
+
+@pytest.mark.parametrize("topic", ["/device_0/sensor_0/option/Depth_Units/value", "/device_0/sensor_0/property"])
+def test_realsense_depth_units_elsewhere(tmp_path, topic):
+    """librealsense also wrote the option as Depth_Units, and file format 2 as a KeyValue on property."""
+    path = write_realsense_bag(tmp_path / "old.bag", units_topic=topic)
+    with RobotLog(path) as log:
+        unit = depth_unit_of(log.depth["depth"])
+        assert unit.m_per_unit == 0.00025 and topic in unit.source
 
 
 def test_realsense_depth_without_unit(tmp_path):
