@@ -1,5 +1,5 @@
 """RealSense SDK bags: the ROS 1 ``.bag`` files ``realsense-viewer`` and ``rs-record`` write (librealsense's
-``ros_writer``, file format version 3), as :class:`nsim.io.robot_log.RobotLog` reads them.
+``ros_writer``, file format version 3; 2 has the options elsewhere), as :class:`nsim.io.robot_log.RobotLog` reads them.
 
 Their layout (``D`` device, ``S`` sensor, ``<Kind>_<i>`` a stream: ``Depth_0``, ``Color_0``,
 ``Infrared_1``, ``Fisheye_1``, ``Accel_0``, ...)::
@@ -8,7 +8,7 @@ Their layout (``D`` device, ``S`` sensor, ``<Kind>_<i>`` a stream: ``Depth_0``, 
     /device_D/info, /device_D/sensor_S/info         diagnostic_msgs/KeyValue (name, serial number, ...)
     /device_D/sensor_S/<Kind>_<i>/info              realsense_msgs/StreamInfo (fps, encoding)
     /device_D/sensor_S/<Kind>_<i>/info/camera_info  sensor_msgs/CameraInfo (K, D; R and P zero)
-    /device_D/sensor_S/<Kind>_<i>/image/data        sensor_msgs/Image (header frame_id empty)
+    /device_D/sensor_S/<Kind>_<i>/image/data        sensor_msgs/Image (header frame_id "0" or empty)
     /device_D/sensor_S/<Kind>_<i>/image/metadata    diagnostic_msgs/KeyValue
     /device_D/sensor_S/<Kind>_<i>/tf/<g>            geometry_msgs/Transform: the stream's extrinsics
     /device_D/sensor_S/option/<Name>/value          std_msgs/Float32 (``Depth Units``: metres per unit)
@@ -17,12 +17,13 @@ Their layout (``D`` device, ``S`` sensor, ``<Kind>_<i>`` a stream: ``Depth_0``, 
 
 **Cameras.** An ``image/data`` topic's CameraInfo is ``info/camera_info`` beside it (the rule of
 :mod:`nsim.io.topic_selection`); its distortion names (``Brown Conrady``, ...) are librealsense's
-(:func:`nsim.io.rosbag.camera_from_info`). ``Depth_<i>`` streams are depth (encoding ``mono16``:
+(:func:`nsim.io.rosbag.camera_from_info`; a camera entry's ``distortion: plumb_bob`` in the selection
+reads a refused model's coefficients as plumb_bob, as realsense2_camera does). ``Depth_<i>`` streams are depth (encoding ``mono16``:
 librealsense's Z16; ``16UC1`` there is an infrared Y16 image, so the encoding does not decide);
 the others are cameras. Default names: the kind in lower case, with the index unless it is 0
 (``color``, ``depth``, ``infrared_1``), with ``device_D_sensor_S_`` in front where two would clash.
 
-**Frames.** The images' frame ids are empty; a stream's frame is ``<Kind>_<i>`` (``device_D/<Kind>_<i>``
+**Frames.** The images' frame ids say nothing (``0``, or empty); a stream's frame is ``<Kind>_<i>`` (``device_D/<Kind>_<i>``
 past device 0). ``tf/<g>`` holds librealsense's extrinsics from the reference stream of group ``g``
 to the stream (``p_stream = R p_reference + t``); each becomes a static link to the group's
 reference frame. That frame is the stream whose extrinsics are the identity (the depth stream's
@@ -32,10 +33,10 @@ The **body frame** is group 0's reference frame of the first device (``RobotLog.
 ``body_trajectory`` says so and how to give one (``nsim import-log BAG --trajectory FILE.tum``).
 
 **Depth units.** A depth image holds integers of a unit the bag states, never guessed (a D400 writes
-0.001 m, an L515 0.00025 m): the ``depth_units`` float that librealsense 2.35 and later append to
+0.001 m, an L515 0.00025 m): the ``depth_units`` float that newer librealsense versions append to
 each depth Image (four bytes after ``data``, outside the message's definition: such images are read
-without them and the value kept), else the sensor's ``option/Depth Units/value`` (``property`` in
-file format 2). Neither is one line naming the option topic; values that change, or frames and
+without them and the value kept), else the sensor's ``option/Depth Units/value`` (or ``Depth_Units``;
+``property`` in file format 2). Neither is one line naming the option topic; values that change, or frames and
 option that disagree, are one line too. The unit lands in the stream's ``depth_unit``
 (:func:`nsim.io.recording_streams.depth_unit_of`), so depth frames come back in metres.
 """

@@ -114,7 +114,7 @@ class _Topic:
         self.size: tuple[int, int] | None = None  # (width, height) of raw images
         self.encoding: str | None = None
         self.frame_id: str | None = None
-        self.calibration: dict[bool, Camera] = {}  # CameraInfo topics: rectified -> camera of message 0
+        self.calibration: dict[tuple, Camera] = {}  # CameraInfo topics: (rectified, distortion) -> camera of message 0
         self.units: list[float] = []  # RealSense depth images: the depth_units after each message's data
 
     def place(self, connection: int, log_time_ns: int) -> None:
@@ -298,7 +298,7 @@ class RobotLog:
                 rectified = entry.rectified
                 if rectified is None:
                     rectified = self._base(entry.image).rsplit("/", 1)[-1].startswith("image_rect")
-                group[name] = CameraTopics(entry.image, info, rectified)
+                group[name] = CameraTopics(entry.image, info, rectified, entry.distortion)
         if sel.lidar is None:
             points = self._of_type([POINT_CLOUD])
             names = default_stream_names({t: t for t in points})
@@ -333,12 +333,12 @@ class RobotLog:
         cameras, depth, lidar, odometry_topic, pose_topic, tf_topic, tf_static_topic = self._resolve(sel)
         gather: dict[str, _Topic] = {}
         kinds: dict[str, str] = {}
-        info_modes: dict[str, set[bool]] = {}  # CameraInfo topic -> read as rectified, as raw, or both
+        info_modes: dict[str, set[tuple]] = {}  # CameraInfo topic -> read as (rectified, distortion), one or more
         for group in (cameras, depth):
             for entry in group.values():
                 kinds[entry.image] = "image"
                 kinds[entry.info] = "info"
-                info_modes.setdefault(entry.info, set()).add(bool(entry.rectified))
+                info_modes.setdefault(entry.info, set()).add((bool(entry.rectified), entry.distortion or ""))
         kinds.update({topic: "points" for topic in lidar.values()})
         if odometry_topic:
             kinds[odometry_topic] = "odometry"
@@ -376,9 +376,9 @@ class RobotLog:
             elif kind == "info":
                 if g.first is None:
                     g.first = msg
-                for rectified in sorted(info_modes[topic]):
-                    cam = camera_from_info(msg, rectified=rectified, where=where)
-                    if g.calibration.setdefault(rectified, cam) != cam:
+                for mode in sorted(info_modes[topic]):
+                    cam = camera_from_info(msg, rectified=mode[0], where=where, distortion=mode[1] or None)
+                    if g.calibration.setdefault(mode, cam) != cam:
                         raise InputError(f"{where}: the calibration differs from message 0's; nsim takes one "
                                          "per camera")
             elif kind == "points":
@@ -487,7 +487,7 @@ class RobotLog:
     def _camera_stream(self, name: str, entry: CameraTopics, gather: dict[str, _Topic], depth: bool = False) -> CameraStream:
         g, info = gather[entry.image], gather[entry.info]
         group = "depth" if depth else "cameras"
-        camera = info.calibration.get(bool(entry.rectified))
+        camera = info.calibration.get((bool(entry.rectified), entry.distortion or ""))
         if camera is None:
             raise InputError(f"{self._where(entry.info)}: no CameraInfo message for {group}.{name} ({entry.image})")
         msgtype = self.topics[entry.image].msgtype

@@ -461,7 +461,8 @@ def read_compressed_image(msg, *, where: str = "image") -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
-def camera_from_info(msg, *, rectified: bool = False, where: str = "camera_info") -> Camera:
+def camera_from_info(msg, *, rectified: bool = False, where: str = "camera_info", distortion: str | None = None,
+                     ) -> Camera:
     """nsim Camera of a sensor_msgs/CameraInfo (ROS 1 or ROS 2).
 
     The raw image (``rectified`` False) is ``K`` with ``D``: ``plumb_bob`` -> OPENCV ``(k1, k2,
@@ -483,13 +484,14 @@ def camera_from_info(msg, *, rectified: bool = False, where: str = "camera_info"
     ``None`` a PINHOLE (its coefficients unused, as librealsense leaves them); ``Modified Brown
     Conrady`` (tangential terms on the radially distorted point) is plumb_bob only where p1 = p2 = 0,
     ``Inverse Brown Conrady`` (coefficients that undistort) and ``Ftheta`` only where D is all zero:
-    otherwise one line refuses them, as nsim's models cannot hold them.
+    otherwise one line refuses them, as nsim's models cannot hold them. ``distortion`` (a ROS model name)
+    reads ``D`` in that model whatever ``distortion_model`` says (the caller's knowing choice).
     """
     K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
     D = [float(v) for v in _field(msg, "d")]
     if not np.all(np.isfinite(K)) or not np.all(np.isfinite(D)):
         raise InputError(f"{where}: K or D is not finite")
-    model, D = _ros_distortion_model(str(msg.distortion_model), D, where)
+    model, D = (distortion, D) if distortion else _ros_distortion_model(str(msg.distortion_model), D, where)
     if not K.any():
         raise InputError(f"{where}: uncalibrated camera (K is all zero)")
     if rectified:
@@ -564,7 +566,8 @@ def _ros_distortion_model(model: str, D: list[float], where: str) -> tuple[str, 
            "inverse_brown_conrady": "coefficients that undistort pixels rather than distort points",
            "ftheta": "an F-Theta fisheye"}[key]
     raise InputError(f"{where}: distortion model {model!r} with D = {D} is librealsense's {why}, which nsim's camera "
-                     "models cannot hold (Brown Conrady, Kannala Brandt4 and any model with D all zero are read)")
+                     "models cannot hold (to read D as plumb_bob, as realsense2_camera publishes it, give the camera "
+                     "distortion: plumb_bob in the selection)")
 
 
 def read_pointcloud(msg, *, where: str = "points") -> np.ndarray:

@@ -35,7 +35,10 @@ whole topic otherwise (``/velodyne_points``), with ``/`` as ``_``; a RealSense S
 named by their kind (``Color_0`` -> ``color``, ``Infrared_1`` -> ``infrared_1``). An image topic whose last part
 starts with ``image_rect`` is rectified: its camera is the PINHOLE of the CameraInfo's ``P``
 (``rectified: true|false`` overrides the guess); other images use ``K`` and ``D``
-(:func:`nsim.io.rosbag.camera_from_info`).
+(:func:`nsim.io.rosbag.camera_from_info`), ``D`` in the CameraInfo's ``distortion_model`` unless the
+entry's ``distortion`` (plumb_bob, rational_polynomial or equidistant) says how to read it, e.g.
+a RealSense colour camera's ``Inverse Brown Conrady`` coefficients read as plumb_bob, as the
+realsense2_camera driver publishes them (``front: {image: /front/image, distortion: plumb_bob}``).
 """
 
 from __future__ import annotations
@@ -49,6 +52,8 @@ from typing import Any
 
 from nsim.errors import InputError
 
+#: The ROS distortion models a camera entry's ``distortion`` may name.
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 #: Last topic parts that name what a topic carries, not which sensor: dropped from default names.
 GENERIC_TOPIC_PARTS = ("image", "image_raw", "image_rect", "image_color", "image_mono", "image_rect_color",
                        "image_rect_raw", "depth", "points", "points_raw", "cloud", "pointcloud", "point_cloud")
@@ -57,11 +62,13 @@ GENERIC_TOPIC_PARTS = ("image", "image_raw", "image_rect", "image_color", "image
 @dataclass(frozen=True)
 class CameraTopics:
     """One camera's topics. info None: the CameraInfo in the image topic's namespace; rectified
-    None: guessed from the topic (last part starts with ``image_rect``)."""
+    None: guessed from the topic (last part starts with ``image_rect``); distortion None: the
+    CameraInfo's distortion_model, else the ROS model its ``D`` is read as."""
 
     image: str
     info: str | None = None
     rectified: bool | None = None
+    distortion: str | None = None
 
 
 @dataclass(frozen=True)
@@ -150,15 +157,19 @@ def _camera_topics(entry: Any, where: str) -> CameraTopics:
     if isinstance(entry, str):
         return CameraTopics(_topic_name(entry, where))
     if not isinstance(entry, Mapping):
-        raise InputError(f"{where}: expected a topic or a mapping with image (and info, rectified), got {entry!r}")
-    check_keys(entry, ("image", "info", "rectified"), where)
+        raise InputError(f"{where}: expected a topic or a mapping with image (and info, rectified, distortion), got "
+                         f"{entry!r}")
+    check_keys(entry, ("image", "info", "rectified", "distortion"), where)
     if "image" not in entry:
         raise InputError(f"{where}: missing key 'image'")
     info = None if entry.get("info") is None else _topic_name(entry["info"], f"{where}.info")
     rectified = entry.get("rectified")
     if rectified is not None and not isinstance(rectified, bool):
         raise InputError(f"{where}.rectified: expected true or false, got {rectified!r}")
-    return CameraTopics(_topic_name(entry["image"], f"{where}.image"), info, rectified)
+    distortion = entry.get("distortion")
+    if distortion is not None and distortion not in DISTORTION_MODELS:
+        raise InputError(f"{where}.distortion: expected one of {', '.join(DISTORTION_MODELS)}, got {distortion!r}")
+    return CameraTopics(_topic_name(entry["image"], f"{where}.image"), info, rectified, distortion)
 
 
 

@@ -73,13 +73,17 @@ def color_pixels(k: int) -> np.ndarray:
 
 def write_realsense_bag(path: Path, *, n: int = 3, units: float | None = 0.00025, frame_units: float | None = None,
                         depth_encoding: str = "mono16", color_model: str = "Brown Conrady",
-                        color_d=COLOR_D, stream_info: bool = True, units_topic: str = UNITS_TOPIC) -> Path:
+                        color_d=COLOR_D, stream_info: bool = True, units_topic: str = UNITS_TOPIC,
+                        lz4: bool = False) -> Path:
     """A bag laid out as librealsense's ros_writer lays it out (one depth and one colour stream, n frames each).
 
     units: the Depth Units option (None: no option topic); frame_units: the depth_units float appended to each
     depth Image after its data, as librealsense 2.35+ does (None: not appended); units_topic: where the option is
-    (``/device_0/sensor_0/property``: file format 2's KeyValue)."""
+    (``/device_0/sensor_0/property``: file format 2's KeyValue); lz4: compressed chunks, as ros_writer's
+    compress_while_record writes them."""
     writer = Writer1(path)
+    if lz4:
+        writer.set_compression(Writer1.CompressionFormat.LZ4)
     writer.open()
     conns: dict[str, object] = {}
 
@@ -163,7 +167,7 @@ def test_realsense_bag_imports(tmp_path, caplog):
 
 def test_realsense_frame_depth_units(tmp_path):
     """librealsense 2.35+ appends depth_units to each depth Image; those frames read, the unit is theirs."""
-    path = write_realsense_bag(tmp_path / "d435.bag", units=None, frame_units=0.001)
+    path = write_realsense_bag(tmp_path / "d435.bag", units=None, frame_units=0.001, lz4=True)
     with RobotLog(path) as log:
         depth = log.depth["depth"]
         unit = depth_unit_of(depth)
@@ -248,10 +252,16 @@ def test_realsense_distortion_models(model, d, ok):
 
 
 def test_realsense_inverse_brown_conrady_in_a_bag(tmp_path):
+    """A D455's colour stream: refused as labelled, read as plumb_bob where the selection says so."""
     path = write_realsense_bag(tmp_path / "d455.bag", color_model="Inverse Brown Conrady")
     with pytest.raises(InputError, match=rf"{COLOR_PREFIX}/info/camera_info message 0: distortion model "
-                                         r"'Inverse Brown Conrady'"):
+                                         r"'Inverse Brown Conrady'.*distortion: plumb_bob in the selection"):
         RobotLog(path)
+    selection = {"cameras": {"color": {"image": COLOR_PREFIX + "/image/data", "distortion": "plumb_bob"}}}
+    with RobotLog(path, selection) as log:
+        assert log.cameras["color"].camera == Camera("OPENCV", W, H, *COLOR_K, COLOR_D)
+    with pytest.raises(InputError, match=r"selection.cameras.color.distortion: expected one of plumb_bob"):
+        RobotLog(path, {"cameras": {"color": {"image": COLOR_PREFIX + "/image/data", "distortion": "brown"}}})
 
 
 def test_realsense2_camera_driver_layout(tmp_path, caplog):
