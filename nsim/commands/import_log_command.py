@@ -13,7 +13,8 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @stage_options("import_log")
 @click.argument("log", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--selection", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="YAML choosing a bag's topics (cameras, depth, lidar, odometry, tf, body_frame, odom_frame); "
+              help="YAML choosing a bag's topics (cameras, depth, lidar, odometry, pose, tf, body_frame, odom_frame; a "
+                   "camera's distortion model); "
                    "default: by message type. Not for a recording folder.")
 @click.option("--trajectory", "trajectory_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="TUM file of the body's poses in the odometry frame, stamps in seconds on the bag's clock: the "

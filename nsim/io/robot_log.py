@@ -169,6 +169,8 @@ class RobotLog:
     def _require(self, topic: str, msgtypes: Sequence[str], what: str) -> str:
         """``topic`` if the bag has it with one of ``msgtypes``; InputError naming it otherwise."""
         short = " or ".join(t.rsplit("/", 1)[-1] for t in msgtypes)
+        if topic not in self.topics and topic.lstrip("/") in self.topics:
+            topic = topic.lstrip("/")  # a ROS 1 bag's topic written without its leading slash (ROS 1 allowed it)
         if topic not in self.topics:
             have = self._of_type(msgtypes)
             close = difflib.get_close_matches(topic, list(self.topics), n=1)
@@ -286,19 +288,19 @@ class RobotLog:
         for group_name, group in (("cameras", cameras), ("depth", depth)):
             for name, entry in group.items():
                 what = f"{group_name}.{name}"
-                self._require(entry.image, (IMAGE, COMPRESSED_IMAGE), what)
+                image = self._require(entry.image, (IMAGE, COMPRESSED_IMAGE), what)
                 info = entry.info
                 if info is None:
-                    info, namespace, n = self._sibling_info(entry.image)
+                    info, namespace, n = self._sibling_info(image)
                     if info is None:
-                        raise InputError(f"{self._where(entry.image)}: no CameraInfo for this image topic "
+                        raise InputError(f"{self._where(image)}: no CameraInfo for this image topic "
                                          f"({n or 'no'} CameraInfo topics in {namespace}/; give {what}.info)")
                 else:
-                    self._require(info, (CAMERA_INFO,), f"{what}.info")
+                    info = self._require(info, (CAMERA_INFO,), f"{what}.info")
                 rectified = entry.rectified
                 if rectified is None:
-                    rectified = self._base(entry.image).rsplit("/", 1)[-1].startswith("image_rect")
-                group[name] = CameraTopics(entry.image, info, rectified, entry.distortion)
+                    rectified = self._base(image).rsplit("/", 1)[-1].startswith("image_rect")
+                group[name] = CameraTopics(image, info, rectified, entry.distortion)
         if sel.lidar is None:
             points = self._of_type([POINT_CLOUD])
             names = default_stream_names({t: t for t in points})

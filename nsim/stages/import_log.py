@@ -67,9 +67,9 @@ log = logging.getLogger(__name__)
 
 @dataclasses.dataclass(frozen=True)
 class Config:
-    trajectory: str = param("auto", choices=("auto", "tf", "odometry"),
-                            help="the body's motion from /tf (odom -> body), the Odometry topic, or tf when it has "
-                                 "a path")
+    trajectory: str = param("auto", choices=("auto", "tf", "odometry", "pose"),
+                            help="the body's motion from /tf (odom -> body), the Odometry topic, the PoseStamped topic, "
+                                 "or auto: tf when it has a path, else odometry, else pose")
     frame_stride: int = param(1, ge=1, help="keep every n-th frame of each stream")
     max_frames: int = param(0, ge=0, help="then at most this many frames per stream, evenly spaced (0: all)")
     max_gap_s: float = param(0.1, gt=0.0, help="a frame further than this from every trajectory stamp is counted as "

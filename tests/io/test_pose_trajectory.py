@@ -168,3 +168,16 @@ def test_pose_not_default_beside_odometry(tmp_path):
     msgs += [("/pose", T0 + k * TICK, lambda b, k=k: pose_msg(b, T0 + k * TICK, "odom", one[k])) for k in range(2)]
     with RobotLog(write(tmp_path / "both", "sqlite3", msgs)) as log:
         assert log.pose is None and log.body_trajectory().source == "odometry /odom"
+
+
+def test_a_ros1_topic_without_its_leading_slash_is_found_by_either_name(tmp_path):
+    """ROS 1 allowed topics without a leading slash (evo's ROS_example.bag has ``groundtruth``): a selection naming
+    ``groundtruth`` or ``/groundtruth`` reads it."""
+    truth = poses(4, seed=3)
+    path = write(bag_path(tmp_path, "ros1"), "ros1", [
+        (topic, T0 + k * TICK, lambda b, k=k: pose_msg(b, T0 + k * TICK, "world", truth[k]))
+        for k in range(4) for topic in ("groundtruth", "slam")])
+    for name in ("groundtruth", "/groundtruth"):
+        with RobotLog(path, Selection.from_data({"pose": name})) as log:
+            assert_no_streams(log)
+            np.testing.assert_allclose(log.body_trajectory().body_to_odom, truth, atol=1e-9)
