@@ -124,7 +124,9 @@ class Evaluation:
 
 
 def compute(ev: Evaluation) -> Result:
-    """``cfg.table`` over the renders; every input is read and checked here, before anything is published."""
+    """``cfg.table`` over the renders; every input is read and checked here, before anything is published: what
+    the files decide for every render first (``GroundTruth.check``), before any frame is scored."""
+    ev.truth.check(ev.cfg.table)
     return TABLE_FUNCTIONS[ev.cfg.table](ev)
 
 
@@ -166,16 +168,14 @@ def table_scenes(ev: Evaluation) -> Result:
     if cfg.region != "all":
         raise InputError("region=people: the scenes table scores captured frames, which show no people")
     oracle = ev.truth  # poses-mode renders: the test room's (nsim.evaluation.oracle_truth.OracleTruth)
+    sources = [_scenes_source(ev, r) for r in ev.renders]  # every render checked before the first is scored
     images, depths, extras, maps, gt_notes = [], [], [], [], {}
     groups: list[str] = []
-    for r in ev.renders:
+    for r, (src, frames_tf, scale) in zip(ev.renders, sources, strict=True):
         group = oracle.environment(r)
         if group in groups:
             group = f"{group} ({r.id[:8]})"
         groups.append(group)
-        src = ev.inputs.artifacts.get(r.manifest["inputs"]["poses"])
-        frames_tf = read_transforms(src.file("transforms.json")).frames
-        scale = float(r.manifest.get("config", {}).get("image_scale", 1.0))
         cap_depth: dict[str, Path] = {}
         if src.kind == "poses" and r.lineage.capture is not None:
             cap = ev.inputs.artifacts.get(r.lineage.capture)
@@ -231,6 +231,37 @@ def table_scenes(ev: Evaluation) -> Result:
     notes += [f"{oracle.environment(r)}: {r.lineage.note}" for r in ev.renders]
     table = _with_notes(table, [*notes, *_image_notes(ev)])
     return Result(table, [*images, *depths], extras, gt_notes, images, depths, maps)
+
+
+def _scenes_source(ev: Evaluation, r):
+    """``(poses or capture artifact, its transforms.json frames, image_scale)`` of a poses-mode render, checked
+    without reading an image: the test room (oracle ground truth), every rendered frame among the artifact's and
+    its files present on both sides, and a rendered size that can match the captured frames'."""
+    from nsim.io.transforms_json import read_transforms
+
+    src = ev.inputs.artifacts.get(r.manifest["inputs"]["poses"])
+    frames_tf = read_transforms(src.file("transforms.json")).frames
+    scale = float(r.manifest.get("config", {}).get("image_scale", 1.0))
+    captured = ev.cfg.scenes_ground_truth != "oracle"
+    if not captured:
+        ev.truth.require_room(r)
+    for f in r.frames:
+        i = int(f["index"])
+        if not 0 <= i < len(frames_tf):
+            raise InputError(f"render {r.short}: frame {i} of render.json is not among the {len(frames_tf)} frames "
+                             f"of {src.kind} {src.id[:12]}")
+        r.file(f"frames/rgb/{i:06d}.png")
+        r.file(f"frames/depth/{i:06d}.exr")
+        frame = frames_tf[i]
+        if captured and not (src.path / frame.file_path).is_file():
+            raise InputError(f"{src.kind} {src.id[:12]}: frame {i} image {frame.file_path} is missing")
+        if captured and scale != 1.0:
+            cam, small = frame.camera, frame.camera.scaled(scale)
+            if (small.width, small.height) != (cam.width, cam.height):
+                raise InputError(f"render {r.short} frame {i}: rendered image is {small.width}x{small.height} but the "
+                                 f"ground truth {cam.width}x{cam.height} (render at image_scale 1, or use "
+                                 "scenes_ground_truth=oracle)")
+    return src, frames_tf, scale
 
 
 # ---------------------------------------------------------------------------------- spot-rgb / spot-depth

@@ -188,6 +188,58 @@ class OracleTruth(GroundTruth):
             mask |= view.instance_mask > 0
         return mask
 
+    # -- every check the renders' files decide, for all renders before the first frame is scored
+    def check(self, table: str) -> None:
+        """What ``table`` needs of every render, checked for all renders before any ground truth is rendered or any
+        frame scored (the tables score render after render; a second render's bad input used to fail after the
+        first's scoring, or its SfM): the mode, the test room, the cameras or LiDARs (``cameras``, ``slam.camera``),
+        each frame's camera record and file, ``robot.tum``; the same one-line errors the tables raise. ``scenes``
+        checks its renders itself (``nsim.evaluation.evaluate_tables.table_scenes``)."""
+        if table == "scenes":
+            return
+        if table == "detection":  # (the detection table's own words)
+            require_mode(self.renders, "trajectory", table, TRAJECTORY_HOW + " --humans ...")
+        self._require_trajectory()
+        coco = self.cfg.detection.detector == "coco"
+        if table == "detection" and self.detection_unavailable(coco) is not None:
+            return  # the table is n/a: no frame is scored
+        people = self.cfg.region == "people"
+        for r in self.renders:
+            if table == "slam":
+                self._slam_plan(r)
+                continue
+            if not (table == "detection" and coco):
+                self.require_room(r)
+            if table == "lidar":
+                lidars = r.rig().lidars
+                if not lidars:
+                    raise InputError(f"render {r.short}: its rig has no LiDAR to score (--table lidar)")
+                from nsim.io.tum import read_tum
+
+                body = read_tum(r.file("robot.tum")).poses_se3()
+                if len(body) != len(r.frames):
+                    raise InputError(f"render {r.short}: robot.tum has {len(body)} poses for its {len(r.frames)} "
+                                     "frames")
+                for s in lidars:
+                    for f in r.frames:
+                        r.file(f"{s.name}/scan/{int(f['index']):06d}.exr")
+                continue
+            want = "depth" if table == "spot-depth" else "image"
+            for s in self.cameras(r, want):
+                for f, cam in zip(r.frames, self.camera_frames(r, s.name), strict=True):
+                    i = int(f["index"])
+                    if table != "detection" and (cam.camera.height, cam.camera.width) != s.ray_shape:
+                        raise InputError(f"render {r.short}: cameras/{s.name}.json frame {i} is "
+                                         f"{cam.camera.width}x{cam.camera.height}, the rig's {s.name} "
+                                         f"{s.ray_shape[1]}x{s.ray_shape[0]}")
+                    r.file(f"{s.name}/depth/{i:06d}.exr" if want == "depth" else f"{s.name}/rgb/{i:06d}.png")
+                    mask = f"{s.name}/mask/{i:06d}.png"
+                    if table == "detection" and not coco:
+                        r.file(mask)
+                    elif people and table != "detection" and not (r.path / mask).is_file():
+                        raise InputError(f"region=people: render {r.short} has no person mask {mask} (rendered "
+                                         "without --humans)")
+
     # -- the interface
     def _require_trajectory(self) -> None:
         require_mode(self.renders, "trajectory", self.cfg.table, TRAJECTORY_HOW)
@@ -280,31 +332,40 @@ class OracleTruth(GroundTruth):
                                           lidar_rows(gt.points_lidar_m, gt.ranges_m)))
                 yield SensorFrames(r, s.name, rows, np.asarray(s.sensor_to_body))
 
+    def _slam_plan(self, r: RenderData):
+        """``(sensor, pairs, times, gt_times)`` of render ``r``'s slam sequence, checked: the camera, the frames'
+        camera records and timestamps (no frame read)."""
+        cfg = self.cfg.slam
+        self.require_room(r)
+        rig = r.rig()
+        if cfg.camera not in rig.names or rig[cfg.camera].type != "camera" or not rig[cfg.camera].emits_image:
+            raise InputError(f"slam.camera: render {r.short}'s rig has no image camera {cfg.camera!r} "
+                             f"(has {', '.join(s.name for s in rig.cameras if s.emits_image)})")
+        s = rig[cfg.camera]
+        pairs = list(zip(r.frames, self.camera_frames(r, s.name), strict=True))[:: cfg.stride]
+        if cfg.max_frames is not None:
+            pairs = pairs[: cfg.max_frames]
+        times = np.array([float(f["time_s"]) for f, _ in pairs])
+        gt_times = np.array([c.timestamp_s if c.timestamp_s is not None else np.nan for _, c in pairs], dtype=float)
+        if not np.isfinite(gt_times).any():
+            raise InputError(f"render {r.short}: cameras/{s.name}.json has no timestamps: no ground-truth trajectory")
+        common = np.abs(gt_times[:, None] - times[None, :]).min(axis=0) <= cfg.max_dt_s
+        if not common.any():
+            raise InputError(f"render {r.short}: the ground-truth poses of {s.name} (cameras/{s.name}.json, t = "
+                             f"{np.nanmin(gt_times):g}..{np.nanmax(gt_times):g} s) share no timestamp with the "
+                             f"frames (t = {times.min():g}..{times.max():g} s, within {cfg.max_dt_s:g} s)")
+        for f, _ in pairs:
+            r.file(f"{s.name}/rgb/{int(f['index']):06d}.png")
+        return s, pairs, times, gt_times
+
     def slam_sequences(self) -> Iterator[SlamSequence]:
         from nsim.io.tum import Trajectory
 
         cfg = self.cfg.slam
         self._require_trajectory()
         for r in self.renders:
-            self.require_room(r)
-            rig = r.rig()
-            if cfg.camera not in rig.names or rig[cfg.camera].type != "camera" or not rig[cfg.camera].emits_image:
-                raise InputError(f"slam.camera: render {r.short}'s rig has no image camera {cfg.camera!r} "
-                                 f"(has {', '.join(s.name for s in rig.cameras if s.emits_image)})")
-            s = rig[cfg.camera]
+            s, pairs, times, gt_times = self._slam_plan(r)
             seq = cfg.camera if len(self.renders) == 1 else f"{self.environment(r)}/{cfg.camera} ({r.id[:8]})"
-            pairs = list(zip(r.frames, self.camera_frames(r, s.name), strict=True))[:: cfg.stride]
-            if cfg.max_frames is not None:
-                pairs = pairs[: cfg.max_frames]
-            times = np.array([float(f["time_s"]) for f, _ in pairs])
-            gt_times = np.array([c.timestamp_s if c.timestamp_s is not None else np.nan for _, c in pairs], dtype=float)
-            if not np.isfinite(gt_times).any():
-                raise InputError(f"render {r.short}: cameras/{s.name}.json has no timestamps: no ground-truth trajectory")
-            common = np.abs(gt_times[:, None] - times[None, :]).min(axis=0) <= cfg.max_dt_s
-            if not common.any():
-                raise InputError(f"render {r.short}: the ground-truth poses of {s.name} (cameras/{s.name}.json, t = "
-                                 f"{np.nanmin(gt_times):g}..{np.nanmax(gt_times):g} s) share no timestamp with the "
-                                 f"frames (t = {times.min():g}..{times.max():g} s, within {cfg.max_dt_s:g} s)")
             ok = np.isfinite(gt_times)
             truth = Trajectory.from_poses(gt_times[ok], np.stack([c.cam_to_world for (_, c), k in zip(pairs, ok,
                                                                                                      strict=True) if k]))

@@ -251,30 +251,54 @@ class RecordingTruth(GroundTruth):
                                       extra={"stamp_ns": int(f["stamp_ns"])}))
             yield SensorFrames(st.render, st.name, rows, _extrinsic(st))
 
+    def _slam_plan(self, st: _Stream):
+        """``(frames, times_s, cam_to_world, inside)`` of a slam stream: its frames (stride, cap) inside the
+        registered trajectory, their odometry times and true poses, and which of the picked frames lay inside;
+        InputError when none does."""
+        from nsim.rendering.recording import odometry_time_ns
+
+        cfg = self.cfg.slam
+        r = st.render
+        reg = self.registrations[r.id]
+        frames = st.frames[:: cfg.stride]
+        if cfg.max_frames is not None:
+            frames = frames[: cfg.max_frames]
+        stamps = np.array([int(f["stamp_ns"]) for f in frames], dtype=np.int64)
+        odom_ns = odometry_time_ns(stamps, reg.clock_offset_s, True)
+        given = [f.get("odom_time_ns") is not None for f in frames]  # as the render moved them, when it says
+        odom_ns[given] = [int(f["odom_time_ns"]) for f, g in zip(frames, given, strict=True) if g]
+        inside, _, cam_to_world = reg.sensor_poses(odom_ns, _extrinsic(st))
+        if not inside.any():
+            raise InputError(f"render {r.short}: no frame of camera {st.name} lies in the time span of "
+                             f"registration {reg.id[:12]}'s trajectory (odometry time "
+                             f"{reg.stamps_ns[0] / 1e9:.3f}..{reg.stamps_ns[-1] / 1e9:.3f} s)")
+        frames = [f for f, k in zip(frames, inside, strict=True) if k]
+        return frames, odom_ns[inside] / 1e9, cam_to_world[inside], inside
+
+    def check(self, table: str) -> None:
+        """Every render's streams of ``table`` checked against their recordings (names, frames, stamps, the
+        files on both sides; slam: frames inside the registered trajectory) for all renders before the first
+        frame is read or scored (module docstring). ``scenes`` takes poses-mode renders (its own check)."""
+        kind = {"spot-rgb": "camera", "spot-depth": "depth", "lidar": "lidar", "slam": "camera",
+                "detection": "camera"}.get(table)
+        if kind is None:
+            return
+        if table in ("spot-rgb", "spot-depth"):
+            self._no_people()
+        coco = table == "detection" and self.cfg.detection.detector == "coco"
+        for st in self.streams(kind, (self.cfg.slam.camera,) if table == "slam" else ()):
+            frames = self._slam_plan(st)[0] if table == "slam" else st.frames
+            for f in frames if not coco else ():
+                self._files(st, f, "png" if kind == "camera" else "exr")
+
     def slam_sequences(self) -> Iterator[SlamSequence]:
         from nsim.io.tum import Trajectory
 
         cfg = self.cfg.slam
         for st in self.streams("camera", (cfg.camera,)):
             r = st.render
-            reg = self.registrations[r.id]
-            frames = st.frames[:: cfg.stride]
-            if cfg.max_frames is not None:
-                frames = frames[: cfg.max_frames]
-            from nsim.rendering.recording import odometry_time_ns
-
-            stamps = np.array([int(f["stamp_ns"]) for f in frames], dtype=np.int64)
-            odom_ns = odometry_time_ns(stamps, reg.clock_offset_s, True)
-            given = [f.get("odom_time_ns") is not None for f in frames]  # as the render moved them, when it says
-            odom_ns[given] = [int(f["odom_time_ns"]) for f, g in zip(frames, given, strict=True) if g]
-            inside, _, cam_to_world = reg.sensor_poses(odom_ns, _extrinsic(st))
-            if not inside.any():
-                raise InputError(f"render {r.short}: no frame of camera {st.name} lies in the time span of "
-                                 f"registration {reg.id[:12]}'s trajectory (odometry time "
-                                 f"{reg.stamps_ns[0] / 1e9:.3f}..{reg.stamps_ns[-1] / 1e9:.3f} s)")
-            frames = [f for f, k in zip(frames, inside, strict=True) if k]
-            times = odom_ns[inside] / 1e9
-            truth = Trajectory.from_poses(times, cam_to_world[inside])
+            frames, times, cam_to_world, inside = self._slam_plan(st)
+            truth = Trajectory.from_poses(times, cam_to_world)
             sim, real = [], []
             for f in frames:
                 sim_path, real_path = self._files(st, f, "png")

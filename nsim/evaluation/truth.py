@@ -98,6 +98,11 @@ class GroundTruth(abc.ABC):
         self.artifacts = inputs.artifacts
         self.renders = inputs.renders
 
+    def check(self, table: str) -> None:
+        """Every check of ``table`` that the renders' and the ground truth's files decide, for all renders, before
+        any frame is read or scored (``compute`` calls it first); InputError (one line) on a problem."""
+        return None
+
     @abc.abstractmethod
     def image_frames(self) -> Iterator[SensorFrames]: ...
 

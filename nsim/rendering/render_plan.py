@@ -105,6 +105,15 @@ class RenderConfig:
     video_fps: float = param(10.0, gt=0.0, le=60.0)
 
 
+def scaled_camera(camera: Camera, image_scale: float, what: str) -> Camera:
+    """``camera.scaled(image_scale)``; InputError naming ``what`` when the scale leaves no pixel."""
+    try:
+        return camera.scaled(image_scale)
+    except ValueError:
+        raise InputError(f"image_scale: {image_scale:g} shrinks {what}'s {camera.width}x{camera.height} image to "
+                         "nothing") from None
+
+
 def adapt_rig(rig: Rig, cfg) -> Rig:
     """The rig's sensors named in ``cfg.sensors`` (empty: all), cameras scaled by ``cfg.image_scale``, LiDARs'
     azimuth samples by ``cfg.lidar_azimuth_scale``. ``cfg``: any config with these three fields (the
@@ -120,7 +129,7 @@ def adapt_rig(rig: Rig, cfg) -> Rig:
         if s.name not in names:
             continue
         if isinstance(s, CameraSensor) and cfg.image_scale != 1.0:
-            s = dataclasses.replace(s, camera=s.camera.scaled(cfg.image_scale))
+            s = dataclasses.replace(s, camera=scaled_camera(s.camera, cfg.image_scale, f"camera {s.name!r}"))
         if isinstance(s, LidarSensor) and cfg.lidar_azimuth_scale != 1.0:
             a = max(1, round(s.config.azimuth_samples * cfg.lidar_azimuth_scale))
             s = dataclasses.replace(s, config=dataclasses.replace(s.config, azimuth_samples=a))
@@ -158,7 +167,7 @@ def plan_frames(sources: RenderSources, cfg: RenderConfig) -> list[TickFrame] | 
         frames = []
         for i in idx:
             f = data.frames[i]
-            cam = f.camera.scaled(cfg.image_scale) if cfg.image_scale != 1.0 else f.camera
+            cam = scaled_camera(f.camera, cfg.image_scale, f"frame {i}") if cfg.image_scale != 1.0 else f.camera
             frames.append(PoseFrame(index=int(i), time_s=f.timestamp_s, name=Path(f.file_path).name,
                                     cam_to_world=f.cam_to_world, camera=cam))
     if cfg.max_frames is not None:

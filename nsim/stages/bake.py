@@ -84,8 +84,12 @@ def training_frames(scene_id: str, ctx: RunContext, setting: str = "cull_weight"
     root = store.get(poses).path
     frames = read_transforms(root / "transforms.json").frames
     size = doc.get("image_size_trained")
+    ids = doc["train_images"]
+    if not isinstance(ids, list) or not all(isinstance(i, int) and 0 <= i < len(frames) for i in ids):
+        raise InputError(f"bake {scene_id[:12]}: scene.json: train_images: expected frame indices of poses "
+                         f"{poses[:12]} ({len(frames)} frames)")
     out, paths = [], []
-    for i in doc["train_images"]:
+    for i in ids:
         cam = frames[int(i)].camera
         if size and int(size[0]) != cam.width:
             cam = cam.scaled(int(size[0]) / cam.width)
@@ -126,6 +130,11 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     key = action_key(inputs, cfg, ctx)
     if (hit := cached(ctx, key)) is not None:
         return Outputs(baked=hit, cache_hit=True)
+    # the training cameras (scene.json, the poses artifact) and images are read and checked before the model loads
+    frames, paths = training_frames(inputs.scene, ctx, "surface" if cfg.surface else "cull_weight") \
+        if cfg.cull_weight is not None or cfg.surface else (None, None)
+    # the texture is fitted to the training images
+    images = training_images(frames, paths) if cfg.surface and cfg.texture_from == "images" else None
     import torch  # the inputs checked first: a bad argument fails without loading torch
 
     from nsim.rendering import OccupancyGrid, load_model
@@ -176,10 +185,6 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         t = torch.cat(parts) if parts else torch.zeros(0, 5, device=ctx.device)
         return t[:, 0], t[:, 1], t[:, 2:]
 
-    frames, paths = training_frames(inputs.scene, ctx, "surface" if cfg.surface else "cull_weight") \
-        if cfg.cull_weight is not None or cfg.surface else (None, None)
-    # the training images are read (and checked) before any work: the texture is fitted to them
-    images = training_images(frames, paths) if cfg.surface and cfg.texture_from == "images" else None
     baked = bake_passes(model, grid, cfg, frames, evaluate)
     if cfg.surface:
         baked = bake_surface(model, baked, cfg, frames, targets, seed=ctx.seed, images=images)

@@ -103,7 +103,7 @@ def training_views(ctx: RunContext, scene_id: str, view_stride: int) -> tuple[st
 
 def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     store = ctx.store
-    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx, STAGE))
+    inputs = Inputs(scene=resolve_scene(inputs.scene, ctx, STAGE, files=("scene.json", "occupancy_grid.npy")))
     key = action_key(inputs, cfg, ctx)
     if (hit := cached(ctx, key)) is not None:
         return Outputs(export=hit, cache_hit=True)
@@ -113,8 +113,11 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
 
     art = store.get(inputs.scene)
     poses_id, views = training_views(ctx, inputs.scene, cfg.points.view_stride)
-    model = load_model(art.path, ctx.device)
     grid = OccupancyGrid.load(art.file("occupancy_grid.npy"), ctx.device)
+    if cfg.mesh.region == "occupied" and not bool(grid.occupied.any()):  # (mesh_region's refusal, before any work)
+        raise InputError(f"export {inputs.scene[:12]}: mesh: the scene's occupancy grid has no occupied cell (an "
+                         "empty scene?); try --set mesh.region=box --set mesh.skip_free_cells=false")
+    model = load_model(art.path, ctx.device)
     log.info("export: %d training views, %d rays each", len(views), cfg.points.rays_per_view)
     seconds = {}
     try:

@@ -156,6 +156,9 @@ def resolve_mode_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
         kind = store.get(poses).kind
         if kind not in ("poses", "capture"):
             raise InputError(f"--poses {inputs.poses}: a {kind} artifact; render needs a poses or capture artifact")
+        if inputs.humans:  # (the shard renderer would refuse them only after loading the scene)
+            raise InputError(f"render --poses: --humans {' '.join(inputs.humans)}: people come from a trajectory "
+                             "(nsim simulate); render them with --trajectory")
     scene = inputs.scene
     if scene is None and traj is not None:
         named = store.get(traj).manifest.get("inputs", {}).get("scene")

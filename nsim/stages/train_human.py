@@ -126,14 +126,29 @@ def action_key(inputs: Inputs, root: Path, cfg: Config, ctx: RunContext) -> str:
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
-def load_data(root: Path):
-    """``HumanTrainData`` from a human data folder (``nsim.human.data.HumanData``)."""
+def check_data(root: Path, cfg: Config):
+    """The human data folder at ``root`` read and checked without reading an image (``HumanData.load``: files,
+    poses, sizes from the headers), with what ``cfg`` needs of it: two frames, one camera, a training frame
+    left by the hold-out. Returns the ``HumanData``."""
+    from nsim.human.data import HumanData
+    from nsim.train.human import holdout_split
+
+    hd = HumanData.load(root)
+    if hd.num_frames < 2:
+        raise InputError(f"human data: need at least 2 frames, got {hd.num_frames}")
+    hd.camera()
+    holdout_split(hd.num_frames, cfg.data)
+    return hd
+
+
+def load_data(root: Path, hd=None):
+    """``HumanTrainData`` from a human data folder (``nsim.human.data.HumanData``; ``hd``: it already loaded)."""
     import numpy as np
 
     from nsim.human.data import HumanData
     from nsim.train.human import HumanTrainData
 
-    hd = HumanData.load(root)
+    hd = HumanData.load(root) if hd is None else hd
     images, masks, backgrounds = hd.read_all()
     return HumanTrainData(images=images, cam_to_world=hd.cam_to_world(), camera=hd.camera(),
                           joint_transforms=hd.joint_transforms(), masks=np.asarray(masks, dtype=bool),
@@ -151,10 +166,13 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
         return Outputs(human=hit, cache_hit=True)
     person_report = None
     if inputs.person is not None:  # masks and poses found in the frames, written as a human data folder
+        if cfg.data.holdout_every == 1:  # whatever the frames found: checked before finding them
+            raise InputError("human data: the hold-out settings leave no training frames (data.holdout_every 1 "
+                             "holds out every frame)")
         root = store.root / "tmp" / f"{STAGE}.{key[:24]}.person"
         shutil.rmtree(root, ignore_errors=True)
         person_report = prepare_person_data(inputs.person, root)
-    data = load_data(root)
+    data = load_data(root, check_data(root, cfg))  # checked before any image is read or the scene loaded
     background_model = None
     if inputs.scene is not None:
         from nsim.rendering import load_model

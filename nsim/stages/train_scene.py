@@ -138,6 +138,7 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
     """Train (or resume, or find in the run cache). ``on_log(trainer, stats)``: called every
     ``output.log_every`` steps (benchmarks evaluate there; it must not change the trainer)."""
     from nsim.train.scene import SceneData, train_scene
+    from nsim.train.scene_data import check_training_inputs
 
     store = ctx.store
     src = store.get(store.resolve(inputs.poses))
@@ -152,10 +153,13 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
     if (hit := cached(ctx, key)) is not None:
         return Outputs(scene=hit, cache_hit=True)
 
+    # every check the inputs decide, before any image is read or any training (issue 44)
+    transforms = check_training_inputs(src.path, cfg, device_kind(ctx.device))
+    robot = plan_recorded_frames(src.path, transforms, reg, rec, inputs.recording, cfg) if reg is not None else None
     data = SceneData.load(src.path, max_image_side=cfg.data.max_image_side, scale=cfg.data.scale)
     record = None
-    if reg is not None:
-        data, record = add_recorded_frames(data, reg, rec, inputs.recording, cfg)
+    if robot is not None:
+        data, record = add_recorded_frames(data, reg, rec, inputs.recording, cfg, robot)
     device = ctx.device
     work = resume_dir(ctx, key)
     result = train_scene(data, cfg, work, device=device, seed=ctx.seed, progress=ctx.show_progress, on_log=on_log)
@@ -164,16 +168,26 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, on_log=None) -> Outputs:
     return Outputs(scene=scene_id, train_seconds=result.trainer.train_seconds, resumed_from=result.resumed_from)
 
 
-def add_recorded_frames(data, reg, rec, opts: RecordingConfig, cfg: Config):
-    """``data`` with the registered recording's training frames appended, and scene.json's ``recording`` record."""
-    from nsim.train.scene_data import read_recorded_frames, recording_record, split_recorded_frames
+def plan_recorded_frames(root, transforms, reg, rec, opts: RecordingConfig, cfg: Config):
+    """The registered recording's frames and which of them train (``(recorded, split, capture_train)``), checked
+    before any image is read: a metric scene, the cameras, at least one robot frame to train on, and each
+    recorded camera fitting the capture's training size (``transforms``: the poses' transforms.json)."""
+    from nsim.train.scene_data import (
+        camera_at,
+        fit_camera,
+        holdout_mask,
+        poses_scale,
+        read_recorded_frames,
+        split_recorded_frames,
+    )
 
     label = f"--recording {reg.id[:12]}"
-    if not data.metric:
+    metric = poses_scale(root, transforms.extra)[1] if cfg.data.scale == "auto" else cfg.data.scale == "metric"
+    if not metric:
         raise InputError(f"{label}: the poses' scale is arbitrary (data.scale); a robot's metric frames need a "
                          "metric scene")
     recorded = read_recorded_frames(reg.path, rec.path, opts.cameras, label)
-    capture_train = len(data.split(cfg.data.holdout_every)[0])
+    capture_train = int((~holdout_mask(root, len(transforms.frames), cfg.data.holdout_every)).sum())
     split = split_recorded_frames(recorded, capture_train, opts)
     dropped = sum(recorded.outside.values())
     if dropped:
@@ -186,6 +200,22 @@ def add_recorded_frames(data, reg, rec, opts: RecordingConfig, cfg: Config):
     if len(split.train) < split.wanted:
         log.warning("%s: share %g asks for %d robot frames, the recording has %d to train on: using them all",
                     label, opts.share, split.wanted, len(split.train))
+    size = camera_at(transforms.frames[0].camera, cfg.data.max_image_side)
+    for camera in {recorded.frames[k].camera_name: recorded.frames[k].camera for k in split.train}.values():
+        fit_camera(camera, size.width, size.height)  # InputError: a camera that cannot be fitted
+    return recorded, split, capture_train
+
+
+def add_recorded_frames(data, reg, rec, opts: RecordingConfig, cfg: Config, robot=None):
+    """``data`` with the registered recording's training frames appended, and scene.json's ``recording`` record.
+    ``robot``: :func:`plan_recorded_frames`'s answer (None: planned here, from ``data``'s transforms.json)."""
+    from nsim.train.scene_data import recording_record
+
+    if robot is None:
+        from nsim.io.transforms_json import read_transforms
+
+        robot = plan_recorded_frames(data.root, read_transforms(data.root / "transforms.json"), reg, rec, opts, cfg)
+    recorded, split, capture_train = robot
     record = recording_record(recorded, split, opts, capture_train, data.n_frames, reg.id, rec.id)
     return data.with_recorded_frames([recorded.frames[k] for k in split.train]), record
 

@@ -169,6 +169,20 @@ class TrainHumanConfig:
 
 
 # ====================================================================== data
+def holdout_split(n: int, cfg: HumanDataConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(train indices, held-out indices) of ``n`` frames (module docstring); InputError when none trains. A
+    function of ``n`` and ``cfg`` alone: ``nsim train-human`` checks it before reading any image."""
+    idx = np.arange(n)
+    held = np.zeros(n, dtype=bool)
+    if cfg.holdout_every > 0:
+        held |= idx % cfg.holdout_every == cfg.holdout_every // 2
+    if cfg.holdout_last_fraction > 0:
+        held |= idx >= n - int(round(cfg.holdout_last_fraction * n))
+    if held.all():
+        raise InputError("human data: the hold-out settings leave no training frames")
+    return idx[~held], idx[held]
+
+
 @dataclass(eq=False)
 class HumanTrainData:
     """Frames of one person, in memory.
@@ -243,15 +257,7 @@ class HumanTrainData:
 
     def split(self, cfg: HumanDataConfig) -> tuple[np.ndarray, np.ndarray]:
         """(train indices, held-out indices); see the module docstring."""
-        idx = np.arange(self.n_frames)
-        held = np.zeros(self.n_frames, dtype=bool)
-        if cfg.holdout_every > 0:
-            held |= idx % cfg.holdout_every == cfg.holdout_every // 2
-        if cfg.holdout_last_fraction > 0:
-            held |= idx >= self.n_frames - int(round(cfg.holdout_last_fraction * self.n_frames))
-        if held.all():
-            raise InputError("human data: the hold-out settings leave no training frames")
-        return idx[~held], idx[held]
+        return holdout_split(self.n_frames, cfg)
 
     def background_pixels(self, frames: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray | None:
         """Known background colours ``(n, 3)`` float32 at pixels (frames, v, u), or None."""
@@ -815,6 +821,7 @@ __all__ = [
     "HumanTrainer",
     "TrainHumanConfig",
     "export_human",
+    "holdout_split",
     "mask_box",
     "mask_iou",
     "psnr",

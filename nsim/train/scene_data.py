@@ -533,9 +533,7 @@ class SceneData:
         recorded = np.arange(n, self.n_frames)
         if holdout_every <= 0:
             return np.concatenate([idx, recorded]), idx[:0]
-        held = idx % holdout_every == 0
-        if held.all():
-            raise InputError(f"{self.root}: holding out every {holdout_every}th frame leaves no training frames")
+        held = holdout_mask(self.root, n, holdout_every)
         return np.concatenate([idx[~held], recorded]), idx[held]
 
     def read_depth_z(self, i: int) -> np.ndarray | None:
@@ -587,6 +585,69 @@ class SceneData:
         """Frame ``i``'s ground-truth z-depth at ``camera``'s size (nearest pixel centre), or None."""
         depth = self.read_depth_z(i)
         return None if depth is None else resize_depth(depth, camera.width, camera.height)
+
+
+def holdout_mask(root, n: int, holdout_every: int) -> np.ndarray:
+    """``(n,)`` bool: capture frame ``i`` is held out when ``i % holdout_every == 0`` (0: none); InputError
+    naming ``root`` when that leaves no training frame."""
+    held = np.zeros(n, bool) if holdout_every <= 0 else np.arange(n) % holdout_every == 0
+    if held.all():
+        raise InputError(f"{root}: holding out every {holdout_every}th frame leaves no training frames")
+    return held
+
+
+def check_training_inputs(root: str | os.PathLike, cfg, device_kind: str):
+    """Every check of ``nsim train-scene`` that ``root/transforms.json``, the files' presence and ``cfg`` (a
+    ``TrainSceneConfig``) decide, before any image is read: frames, the hold-out, the training and scoring sizes
+    (``data.max_image_side``, ``eval.image_side``), the scene box (``data.bounds``), the depth losses' inputs
+    and the hash backend on ``device_kind`` (``cpu`` / ``cuda``). Returns the transforms
+    (``nsim.io.transforms_json.TransformsData``). InputError (one line) on a problem."""
+    import importlib.util
+
+    from nsim.io.transforms_json import read_transforms
+
+    root = Path(root)
+    where = root / "transforms.json"
+    data = read_transforms(where)
+    if not data.frames:
+        raise InputError(f"{where}: frames: no frames")
+    size = (data.frames[0].camera.width, data.frames[0].camera.height)
+    for i, frame in enumerate(data.frames):
+        if (frame.camera.width, frame.camera.height) != size:
+            raise InputError(f"{where}: frames[{i}]: image size {frame.camera.width}x{frame.camera.height} "
+                             f"differs from frames[0] ({size[0]}x{size[1]}); mixed sizes are not supported")
+    held = holdout_mask(root, len(data.frames), cfg.data.holdout_every)
+    for setting, side in (("data.max_image_side", cfg.data.max_image_side), ("eval.image_side", cfg.eval.image_side)):
+        for cam in {(f.camera.width, f.camera.height): f.camera for f in data.frames}.values():
+            try:
+                camera_at(cam, side)
+            except ValueError:
+                raise InputError(f"{setting}: {side} px shrinks the {cam.width}x{cam.height} images to nothing; "
+                                 "set it larger (0: as captured)") from None
+    d = cfg.data
+    has_points = any((root / name).is_file() for name in POINT_FILES)
+    if d.bounds == "fixed":
+        if d.aabb_min_m is None or d.aabb_max_m is None:
+            raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
+        lo, hi = np.asarray(d.aabb_min_m, float), np.asarray(d.aabb_max_m, float)
+        if not np.all(hi - lo > 1e-3):
+            raise InputError(f"data.bounds: degenerate scene box {lo.tolist()} .. {hi.tolist()}; "
+                             "data.aabb_max_m must exceed data.aabb_min_m on every axis")
+    elif d.bounds == "points" and not has_points:
+        raise InputError(f"{root}: data.bounds is 'points' but there is no sparse point cloud ({', '.join(POINT_FILES)})")
+    if cfg.loss.depth_weight > 0 and not has_points:
+        raise InputError(f"{root}: loss.depth_weight > 0 needs a sparse point cloud ({', '.join(POINT_FILES)})")
+    if cfg.loss.image_depth_weight > 0 and not any(f.depth_file_path for f, h in zip(data.frames, held, strict=True)
+                                                    if not h):
+        raise InputError(f"{root}: loss.image_depth_weight > 0 but no training frame has a depth image "
+                         "(depth_file_path)")
+    if cfg.field.backend == "tcnn":
+        if device_kind != "cuda":
+            raise InputError("field.backend: tcnn (tiny-cuda-nn) runs on CUDA only; use --device cuda, or "
+                             "field.backend=auto or torch")
+        if importlib.util.find_spec("tinycudann") is None:
+            raise InputError("field.backend: tcnn, but tinycudann is not installed; use field.backend=auto or torch")
+    return data
 
 
 def scene_bounds(data: SceneData, cfg: DataConfig) -> np.ndarray:
