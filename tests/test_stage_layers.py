@@ -26,7 +26,7 @@ SHARED = {"runner"}
 #: The most lines a stage file may have.
 MAX_STAGE_LINES = 300
 #: Stage files still over ``MAX_STAGE_LINES`` (issue 23), each with the size it may not exceed.
-OVER_LIMIT = {"simulate.py": 303}
+OVER_LIMIT: dict[str, int] = {}
 
 
 def stage_import_violations(root: Path, package: str = "nsim.stages") -> list[str]:

@@ -423,6 +423,9 @@ def with_recorded_trajectory(spec: ScenarioSpec, stamps_ns: np.ndarray, position
     rebase = d["robot"]["trajectory"].get("rebase_time", True)
     t = (stamps_ns - (stamps_ns[0] if rebase else 0)) / 1e9
     d["robot"]["trajectory"] = _poses_entry(t, positions_m, quats_wxyz, source)
+    if t[-1] < float(d["duration_s"]):
+        log.warning("%s: robot.trajectory: %s ends at t = %.3f s, before the scenario's duration_s %.3g: the robot "
+                    "stands at its last pose for the rest", spec.source, source, t[-1], d["duration_s"])
     out = dataclasses.replace(spec, data=d)
     _check_poses(out, d)
     return out

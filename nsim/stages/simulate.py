@@ -45,16 +45,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import logging
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
 from nsim.crowd.behaviours import BehaviourParams
 from nsim.crowd.driver import simulate, spawn_extra_humans
+from nsim.crowd.recorded_path import resolve_trajectory
 from nsim.crowd.run_output import SUMMARY_METRICS, run_metrics, write_trajectory
 from nsim.crowd.scenario import (
     Scenario,
@@ -66,7 +64,6 @@ from nsim.crowd.scenario import (
     read_occupancy,
     read_scenario,
     resolve_scenario,
-    with_recorded_trajectory,
 )
 from nsim.crowd.sensors import scene_sensors
 from nsim.crowd.social_force import ForceParams
@@ -74,7 +71,6 @@ from nsim.crowd.sweep import SweepSpec
 from nsim.errors import NsimError
 from nsim.stages.runner import cached, device_kind, rerun
 
-log = logging.getLogger(__name__)
 STAGE = "simulate"
 VERSION = 4  # 2: run.mp4 in H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded (nsim.io.canonical)
 
@@ -108,7 +104,7 @@ class Outputs:
 
 
 # ----------------------------------------------------------------------------------------------
-# Reading the scenario: its scene reference resolved to arrays
+# Reading the scenario: its scene reference resolved to arrays, a recorded robot path inlined
 
 
 def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
@@ -138,60 +134,6 @@ def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
         if why:
             raise spec.error(where, f"scene-checkpoint {art_id[:12]} has no walkable map: {why}")
     return SceneMap({"checkpoint": art_id}, *read_occupancy(occ, f"scene.checkpoint {ref!r}", spec.error))
-
-
-#: Where a trajectory entry's artifact keeps the body's path: kind -> (TUM file, its stamps in ns, the frame it is in).
-RECORDED_PATHS = {
-    "recording": ("trajectory.tum", "trajectory_ns.npy", "the recording's odometry frame, taken as the scene's world"),
-    "registration": ("trajectory_world.tum", "trajectory_world_ns.npy", "the scene's world (registered)"),
-}
-
-
-def resolve_trajectory(spec: ScenarioSpec, store=None, robot_trajectory: str | None = None) -> ScenarioSpec:
-    """``spec`` with a ``robot.trajectory`` that names an artifact (``{recording: REF}``, ``{registration: REF}``)
-    replaced by its poses (``nsim.crowd.scenario.with_recorded_trajectory``); ``robot_trajectory`` (the command
-    line's ``--robot-trajectory``): a TUM file, or a recording or registration artifact, replacing the file's."""
-    from nsim.io.robot_folder import read_tum_ns
-    from nsim.io.tum import read_tum
-
-    entry = dict(spec.data["robot"]["trajectory"])
-    where = ("robot", "trajectory")
-    if robot_trajectory is not None:
-        if Path(robot_trajectory).is_file():
-            stamps, _ = read_tum_ns(Path(robot_trajectory))
-            tum = read_tum(Path(robot_trajectory))
-            log.info("simulate: the robot drives along %s (%d poses; --robot-trajectory replaces the scenario's)",
-                     robot_trajectory, len(stamps))
-            return with_recorded_trajectory(spec, stamps, tum.positions_xyz, tum.orientations_quat_wxyz,
-                                            f"file {Path(robot_trajectory).name}")
-        entry = {"artifact": robot_trajectory}
-        where = "--robot-trajectory"
-    kinds = [k for k in RECORDED_PATHS if k in entry] or (["artifact"] if "artifact" in entry else [])
-    if not kinds:
-        return spec
-    ref = entry[kinds[0]]
-    if store is None:
-        raise spec.error(where, "a recording or registration needs a workspace to resolve it")
-    try:
-        art_id = store.resolve(ref, kind=None if kinds[0] == "artifact" else kinds[0])
-    except NsimError as exc:
-        raise spec.error(where, str(exc)) from None
-    art = store.get(art_id)
-    kind = art.kind
-    if kind not in RECORDED_PATHS:
-        raise spec.error(where, f"{ref!r} is a {kind} artifact; the robot drives along a recording (nsim import-log) "
-                         "or a registration (nsim register-log)")
-    tum_name, ns_name, frame = RECORDED_PATHS[kind]
-    stamps = np.load(art.file(ns_name), allow_pickle=False)
-    tum = read_tum(art.file(tum_name))
-    if len(stamps) != len(tum):
-        raise spec.error(where, f"{kind} {art_id[:12]}: {ns_name} and {tum_name} disagree")
-    if kind == "recording":
-        log.warning("simulate: the robot drives along recording %s (%d poses); its odometry frame is taken as the "
-                 "scene's world (register-log places a recording with cameras: {registration: REF})", art_id[:12],
-                 len(stamps))
-    return with_recorded_trajectory(spec, stamps, tum.positions_xyz, tum.orientations_quat_wxyz,
-                                    f"{kind} {art_id} ({tum_name}, in {frame})")
 
 
 def load_scenario(path: str | Path, store=None, robot_trajectory: str | None = None) -> Scenario:
@@ -243,15 +185,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
     metrics = run_metrics(sc, sim, cfg.forces)
     if cam is not None:  # the frames are not kept: how many of each sensor the controller asked for
         metrics["run"]["sensor_frames"] = dict(cam.frames_rendered)
-    with store.publish(
-        kind="trajectory",
-        stage=STAGE,
-        version=VERSION,
-        key=key,
-        config=cfg,
-        inputs=inputs.ids(),
-        seed=ctx.seed,
-    ) as out:
+    with store.publish(kind="trajectory", stage=STAGE, version=VERSION, key=key, config=cfg, inputs=inputs.ids(),
+                       seed=ctx.seed) as out:
         write_trajectory(out.dir, sc, sim, metrics, cfg)
         out.summary.update({"scenario": sc.name, "scenario_digest": sc.digest, "humans": len(sc.humans),
                             "ticks": len(sim.time_s), "dt_s": dt_s, "duration_s": float(sim.time_s[-1]),
