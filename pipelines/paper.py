@@ -270,9 +270,25 @@ class SpotRun(NamedTuple):
     scene: str
 
 
+def check_arguments(ctx: RunContext, out_dir: Path | None, request: RecordingRequest | None = None) -> None:
+    """What the arguments alone decide, before the first stage: ``--out`` a folder (or not there yet), and for
+    ``--recording LOG`` the log there (import-log's own input checks) and ``--poses`` / ``--scene`` artifacts of the
+    right kinds. One-line NsimError otherwise."""
+    if out_dir is not None and out_dir.exists() and not out_dir.is_dir():
+        raise NsimError(f"--out {out_dir}: exists and is not a folder")
+    if request is None:
+        return
+    if request.log is not None:
+        import_log.Inputs(log=(request.log,)).validate()
+    for option, spec, kind in (("--poses", request.poses, "poses"), ("--scene", request.scene, "scene-checkpoint")):
+        if spec is not None and (actual := ctx.store.get(ctx.store.resolve(spec)).kind) != kind:
+            raise NsimError(f"{option} {spec}: a {actual} artifact; expected a {kind} artifact")
+
+
 def run_paper(workspace: Path, size: str, seed: int, device: str, out_dir: Path | None) -> dict:
     """The five oracle tables (``{name: Table}``), and with ``--out`` their Markdown."""
     ctx = RunContext(store=Store(workspace), device_spec=device, seed=seed)
+    check_arguments(ctx, out_dir)
     tables, _ = paper_tables(ctx, size)
     if out_dir is not None:
         write_tables(ctx, tables, out_dir, "paper")
@@ -640,6 +656,7 @@ def run_paper_recording(workspace: Path, size: str, seed: int, device: str, out_
     """The oracle tables (none when ``request`` names its own poses and scene: nothing of the test room is needed)
     and the --recording path."""
     ctx = RunContext(store=Store(workspace), device_spec=device, seed=seed)
+    check_arguments(ctx, out_dir, request)
     tables, spot = {}, None
     if request.poses is None or request.scene is None or request.log is None:
         tables, spot = paper_tables(ctx, size)

@@ -132,3 +132,22 @@ def test_tolerance_bounds_and_their_text():
     assert "±0.25 x+0.02 within" in paper.agreement_text(rows)
     far = paper.agreement(depth_table(0.0219), depth_table(0.06))
     assert next(r for r in far if r["metric"] == "AbsRel")["within"] is False
+
+
+def test_bad_arguments_fail_before_the_first_stage(tmp_path, monkeypatch):
+    """A LOG that is not there, a --poses of another kind, an --out that is a file: one line before any stage."""
+    paper = load_paper()
+    monkeypatch.setattr(paper, "paper_tables", lambda *a, **k: pytest.fail("the pipeline ran before the check"))
+    monkeypatch.setattr(paper, "run_recording", lambda *a, **k: pytest.fail("the pipeline ran before the check"))
+    ws = tmp_path / "ws"
+    cases = [
+        (paper.RecordingRequest(log=tmp_path / "nosuch.bag"), None, "nosuch.bag: no such file or directory"),
+        (paper.RecordingRequest(log=tmp_path, poses="nothing", scene="nothing"), None, "no artifact or ref named"),
+    ]
+    (tmp_path / "out.md").write_text("")
+    cases.append((paper.RecordingRequest(), tmp_path / "out.md", "exists and is not a folder"))
+    for request, out, words in cases:
+        with pytest.raises(paper.NsimError, match=words):
+            paper.run_paper_recording(ws, "tiny", 0, "cpu", out, request)
+    with pytest.raises(paper.NsimError, match="exists and is not a folder"):
+        paper.run_paper(ws, "tiny", 0, "cpu", tmp_path / "out.md")
