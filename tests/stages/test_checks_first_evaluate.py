@@ -15,29 +15,22 @@ import pytest
 from nsim.cli import main
 from nsim.config import configs_dir
 from nsim.workspace.store import Store
+from tests.stages.sentinel import ReachedWork, block_work
 
 FRAMES = (0, 1, 2)
 
 
-class ReachedWork(Exception):
-    pass
-
-
 @pytest.fixture
 def no_work(monkeypatch):
-    calls = []
-
-    def sentinel(*args, **kwargs):
-        calls.append(args)
-        raise ReachedWork
-
-    monkeypatch.setattr("nsim.evaluation.oracle_truth.OracleTruth.oracle", sentinel)
-    monkeypatch.setattr("nsim.evaluation.oracle_truth.OracleTruth.oracle_view", sentinel)
-    monkeypatch.setattr("nsim.metrics.slam.run_colmap_slam", sentinel)
-    monkeypatch.setattr("nsim.metrics.paper_tables.image_records", sentinel)
-    monkeypatch.setattr("nsim.io.lidar_exr.read_lidar_exr", sentinel)
-    monkeypatch.setattr("nsim.evaluation.oracle_truth.read_rgb", sentinel)  # reading the frames
-    return calls
+    return block_work(
+        monkeypatch,
+        "nsim.evaluation.oracle_truth.OracleTruth.oracle",
+        "nsim.evaluation.oracle_truth.OracleTruth.oracle_view",
+        "nsim.metrics.slam.run_colmap_slam",
+        "nsim.metrics.paper_tables.image_records",
+        "nsim.io.lidar_exr.read_lidar_exr",
+        "nsim.evaluation.oracle_truth.read_rgb",
+    )
 
 
 def _publish(store: Store, kind: str, name: str, inputs: dict, files: dict) -> str:

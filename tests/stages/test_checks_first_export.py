@@ -12,23 +12,12 @@ import pytest
 
 from nsim.cli import main
 from nsim.workspace.store import Store
-
-
-class ReachedWork(Exception):
-    pass
+from tests.stages.sentinel import ReachedWork, block_work
 
 
 @pytest.fixture
 def no_work(monkeypatch):
-    calls = []
-
-    def sentinel(*args, **kwargs):
-        calls.append(args)
-        raise ReachedWork
-
-    monkeypatch.setattr("nsim.rendering.load_model", sentinel)
-    monkeypatch.setattr("nsim.export.extract.cast_views", sentinel)
-    return calls
+    return block_work(monkeypatch, "nsim.rendering.load_model", "nsim.export.extract.cast_views")
 
 
 def _scene(store: Store, name: str, occupied: bool | None) -> str:

@@ -12,10 +12,7 @@ import pytest
 
 from nsim.cli import main
 from nsim.workspace.store import Store
-
-
-class ReachedWork(Exception):
-    pass
+from tests.stages.sentinel import ReachedWork, block_work
 
 
 @pytest.fixture
@@ -42,15 +39,7 @@ def world(tmp_path):
 
 @pytest.fixture
 def no_work(monkeypatch):
-    calls = []
-
-    def sentinel(*args, **kwargs):
-        calls.append(args)
-        raise ReachedWork
-
-    monkeypatch.setattr("nsim.rendering.model.load_model", sentinel)
-    monkeypatch.setattr("nsim.rendering.render_plan.bake_here", sentinel)
-    return calls
+    return block_work(monkeypatch, "nsim.rendering.model.load_model", "nsim.rendering.render_plan.bake_here")
 
 
 def _kinds(ws) -> list[str]:

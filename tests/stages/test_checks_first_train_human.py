@@ -11,23 +11,12 @@ import pytest
 
 from nsim.cli import main
 from tests.human.test_data import _dataset
-
-
-class ReachedWork(Exception):
-    pass
+from tests.stages.sentinel import ReachedWork, block_work
 
 
 @pytest.fixture
 def no_work(monkeypatch):
-    calls = []
-
-    def sentinel(*args, **kwargs):
-        calls.append(args)
-        raise ReachedWork
-
-    monkeypatch.setattr("nsim.human.data.HumanData.read_all", sentinel)
-    monkeypatch.setattr("nsim.stages.train_human.prepare_person_data", sentinel)
-    return calls
+    return block_work(monkeypatch, "nsim.human.data.HumanData.read_all", "nsim.stages.train_human.prepare_person_data")
 
 
 def _train(tmp_path, capsys, *args: str):
