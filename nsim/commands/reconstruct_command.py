@@ -23,6 +23,9 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
                    "an import's scale is arbitrary.")
 @click.option("--reference", type=click.Path(), default=None,
               help="Metric poses (transforms.json, or a TUM trajectory such as odometry) for a Sim(3) fit.")
+@click.option("--reference-poses", is_flag=True,
+              help="With --reference and --intrinsics: the reference's poses are the cameras' (motion capture): "
+                   "no SfM mapping, the features are only triangulated there (a camera turning in place).")
 @click.option("--known-distance", type=float, nargs=7, default=None, metavar="X1 Y1 Z1 X2 Y2 Z2 D",
               help="Two points of an unscaled run and their distance in metres.")
 @click.option("--camera-height", type=float, default=None, help="Mean camera height above the floor (m).")
@@ -32,7 +35,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--camera-model", default=None, help="SIMPLE_RADIAL, OPENCV, OPENCV_FISHEYE or PINHOLE.")
 @click.pass_context
 def command(click_ctx, source, preset, config_file, overrides, force, tag, import_file, reference, known_distance,
-            camera_height, intrinsics, frames, camera_model, images_root, skip_missing, metric):
+            camera_height, intrinsics, frames, camera_model, images_root, skip_missing, metric, reference_poses):
     """Camera poses from a video, a folder of images or a capture artifact (pycolmap SfM, metric scale)."""
     from nsim.errors import InputError
     from nsim.stages import reconstruct
@@ -57,6 +60,7 @@ def command(click_ctx, source, preset, config_file, overrides, force, tag, impor
         intrinsics=Path(intrinsics) if intrinsics else None, known_distance=tuple(known_distance) if known_distance else None,
         camera_height_m=camera_height, import_transforms=Path(import_file) if import_file else None,
         images_root=Path(images_root) if images_root else None, skip_missing=skip_missing, metric=metric,
+        reference_poses=reference_poses,
     )
     out = reconstruct.run(inputs, cfg, ctx)
     frames_line = ctx.store.get(out.poses).manifest.get("summary", {}).get("video_frames")

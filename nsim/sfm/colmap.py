@@ -48,6 +48,19 @@ the mapper's choices depend on the ids). Sequential pairs are generated first an
 explicit list (``match_sequential`` with loop detection and several threads now and then drops a
 pair). The same images and options then give the same poses bit for bit.
 
+Known poses. With ``known_poses`` (camera-to-world per image name, OpenCV axes, e.g. a motion-capture
+trajectory) and a ``known_camera``, nothing is mapped: the images get those poses and the matched
+features are only triangulated (``pycolmap.triangulate_points``, down to ``KNOWN_POSES_MIN_ANGLE_DEG``
+between rays). That is for captures whose own SfM cannot start: a camera turning about itself (TUM
+RGB-D's fr1_rpy: its centre moves 4 cm over 24 s) leaves every pair a homography, which COLMAP never
+takes as an initial pair, while the motion capture's few centimetres still triangulate its desk at
+0.6-0.9 m to about 2 px.
+
+A known camera is not judged. COLMAP drops cameras whose distortion coefficients exceed
+``max_extra_param`` (1.0) as a diverged refinement ("bogus" parameters); a calibrated camera can
+legitimately exceed that (the TUM RGB-D fr1 Kinect's k3 is 1.1633, its k2 -0.9531), and with a
+known camera that stays fixed the check would only refuse it: it is lifted then (``_mapper_options``).
+
 Import order: ``cv2`` must be imported before ``pycolmap``. With pycolmap 4.2.1 and
 opencv-contrib-python-headless 5.0 loaded the other way round, ``cv2.imencode('.png')`` aborts
 the whole process (a double free in zlib's ``deflateEnd`` under OpenCV's libpng: the two wheels'
@@ -65,7 +78,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -389,8 +402,46 @@ def _set_cameras(db_path: Path, make: Callable[[pycolmap.Camera], pycolmap.Camer
                                         two_view_geometry_options=_two_view_options(seed))
 
 
+#: COLMAP's bound on a camera's distortion coefficients when the camera is known and fixed (no bound).
+KNOWN_CAMERA_MAX_EXTRA_PARAM = float(np.finfo(np.float32).max)
+#: The smallest angle between two rays a point is triangulated from when the poses are known (COLMAP: 1.5 deg).
+KNOWN_POSES_MIN_ANGLE_DEG = 1.0
+
+
+def _triangulate_known(db_path: Path, image_dir: Path, out_dir: Path, known_poses: Mapping[str, np.ndarray],
+                       options: SfmOptions) -> pycolmap.Reconstruction:
+    """The database's images at ``known_poses`` (camera-to-world, OpenCV axes, by image name) with their matched
+    features triangulated; the cameras are the database's (the known camera) and stay fixed."""
+    db = pycolmap.Database.open(db_path)
+    try:
+        rec = pycolmap.Reconstruction()
+        for cam in db.read_all_cameras():
+            rec.add_camera_with_trivial_rig(cam)
+        for image in db.read_all_images():
+            keypoints = db.read_keypoints(image.image_id)[:, :2].astype(np.float64)
+            points = pycolmap.Point2DList([pycolmap.Point2D(xy) for xy in keypoints])
+            posed = pycolmap.Image(name=image.name, camera_id=image.camera_id, image_id=image.image_id,
+                                   points2D=points)
+            w2c = invert_se3(np.asarray(known_poses[image.name], dtype=np.float64))
+            rec.add_image_with_trivial_frame(posed, pycolmap.Rigid3d(w2c[:3, :]))
+    finally:
+        db.close()
+    opts = _mapper_options(options, refine_intrinsics=False)
+    opts.triangulation.min_angle = KNOWN_POSES_MIN_ANGLE_DEG
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True)
+    return pycolmap.triangulate_points(rec, db_path, image_dir, out_dir, options=opts)
+
+
 def _mapper_options(options: SfmOptions, refine_intrinsics: bool) -> pycolmap.IncrementalPipelineOptions:
     opts = pycolmap.IncrementalPipelineOptions()
+    if not refine_intrinsics:
+        # a known camera kept fixed: COLMAP's check for diverged distortion (|coefficient| > 1) would only
+        # refuse a calibrated camera that exceeds it (module docstring, "A known camera is not judged")
+        opts.max_extra_param = KNOWN_CAMERA_MAX_EXTRA_PARAM
+        opts.mapper.max_extra_param = KNOWN_CAMERA_MAX_EXTRA_PARAM
+        opts.triangulation.max_extra_param = KNOWN_CAMERA_MAX_EXTRA_PARAM
     opts.num_threads = 1 if options.deterministic else options.num_threads
     opts.random_seed = options.seed
     opts.multiple_models = True
@@ -632,8 +683,13 @@ def run_sfm(
     image_names: list[str] | None = None,
     progress: ProgressFn | None = None,
     mask_dir: str | os.PathLike | None = None,
+    known_poses: Mapping[str, np.ndarray] | None = None,
 ) -> SfmResult:
     """Reconstruct the images ``image_names`` (default: every jpg/jpeg/png) of ``image_dir``.
+
+    known_poses: camera-to-world (4 x 4, OpenCV axes) of every image, by name; with a
+    ``known_camera`` the images are not mapped but placed there and their features triangulated
+    (module docstring, "Known poses"); the result's world is then the poses'.
 
     mask_dir: optional feature masks, COLMAP's convention: ``<mask_dir>/<image name>.png``, no
     features where the mask is 0 (e.g. a person walking through the view).
@@ -647,7 +703,8 @@ def run_sfm(
     images registered; the message says what to change.
     """
     with colmap_log_level(), native_stderr_to_log():
-        return _run_sfm(Path(image_dir), Path(work_dir), options, known_camera, image_names, progress, mask_dir)
+        return _run_sfm(Path(image_dir), Path(work_dir), options, known_camera, image_names, progress, mask_dir,
+                        known_poses)
 
 
 _NATIVE_LINE = re.compile(r"^([IWEF]\d{8} |WARNING clustering |Clustering |Sampling )")
@@ -690,7 +747,8 @@ def native_stderr_to_log() -> Iterator[None]:
 
 def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera: Camera | None,
              image_names: list[str] | None, progress: ProgressFn | None,
-             mask_dir: str | os.PathLike | None = None) -> SfmResult:
+             mask_dir: str | os.PathLike | None = None,
+             known_poses: Mapping[str, np.ndarray] | None = None) -> SfmResult:
     from nsim.sfm.frames import MIN_IMAGES, list_image_files
 
     t_start = time.perf_counter()
@@ -712,6 +770,12 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
         if bad:
             raise InputError(f"{image_dir / bad[0]}: image is {sizes[bad[0]][0]}x{sizes[bad[0]][1]} but the known "
                              f"camera is {known_camera.width}x{known_camera.height}")
+    if known_poses is not None:
+        if known_camera is None:
+            raise InputError("known poses need a known camera (--intrinsics): only the points are triangulated")
+        if missing := [n for n in names if n not in known_poses]:
+            raise InputError(f"{image_dir / missing[0]}: no known pose for this image ({len(missing)} of {len(names)} "
+                             "without one)")
     if work_dir.exists():
         shutil.rmtree(work_dir)
     work_dir.mkdir(parents=True)
@@ -762,6 +826,22 @@ def _run_sfm(image_dir: Path, work_dir: Path, options: SfmOptions, known_camera:
     _match(db_path, work_dir, n, options, device)
     wall["matching"] = time.perf_counter() - t
     report("matching", 1, 1)
+
+    if known_poses is not None:
+        t = time.perf_counter()
+        report("triangulation", 0, 1)
+        rec = _triangulate_known(db_path, image_dir, work_dir / "known_poses", known_poses, options)
+        wall["triangulation"] = time.perf_counter() - t
+        report("triangulation", 1, 1)
+        if rec.num_points3D() == 0:
+            raise InputError(f"{image_dir}: no point triangulated from the known poses (the cameras barely move, or "
+                             "the poses do not belong to these images)")
+        wall["total"] = time.perf_counter() - t_start
+        model_dir = work_dir / "sparse"
+        model_dir.mkdir()
+        rec.write(model_dir)
+        return _result(rec, names, 1, [{"known_poses": True, "registered": rec.num_reg_images(), "models": 1}],
+                       "cuda" if device == pycolmap.Device.cuda else "cpu", wall)
 
     # Mapping, retried with the next focal-length guess while too few images register.
     t = time.perf_counter()

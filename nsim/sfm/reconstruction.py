@@ -4,7 +4,7 @@ picture (``nsim reconstruct``'s artifact, laid out in ``nsim.stages.reconstruct`
 stage reads its inputs, calls :func:`reconstruct` or ``nsim.sfm.imported.write_import``, and publishes).
 
 ``inputs`` and ``cfg``: the stage's inputs and config, read for their fields (``intrinsics``,
-``reference``, ``known_distance``, ``camera_height_m``, ``capture``; ``frames``, ``blur_ratio``,
+``reference``, ``reference_poses``, ``known_distance``, ``camera_height_m``, ``capture``; ``frames``, ``blur_ratio``,
 ``dedup_threshold``, ``shared_intrinsics``, ``exif_focal_prior``, ``max_dt_s``, ``camera_model``).
 No workspace code: a capture's frames come in as a folder and its timestamps by frame stem.
 """
@@ -137,10 +137,16 @@ def reconstruct(out_dir: Path, inputs, cfg, options: SfmOptions, source: Path, c
     reference, kd = scale_inputs(inputs.reference, inputs.known_distance)
     frames, selection = _select_frames(source, cfg, show_progress)
     timestamps = frame_timestamps(frames, capture_times, source)
+    known_poses = None
     if reference is not None:  # the frames must match the reference before SfM, not after it
         from nsim.sfm.metric import associate_reference
 
-        associate_reference([f.name for f in frames], timestamps, reference, cfg.max_dt_s)
+        ie, ir, _ = associate_reference([f.name for f in frames], timestamps, reference, cfg.max_dt_s)
+        if getattr(inputs, "reference_poses", False):  # the reference's poses are the cameras' (no mapping)
+            if len(ie) != len(frames):
+                raise InputError(f"--reference-poses: {len(frames) - len(ie)} of {len(frames)} frames have no "
+                                 f"pose in {reference.source} (within {cfg.max_dt_s} s): every frame needs one")
+            known_poses = {frames[i].name: reference.cam_to_world[j] for i, j in zip(ie, ir, strict=True)}
     write_frames(frames, out_dir / "images")
     phases["frame_selection_s"] = time.perf_counter() - t0
 
@@ -153,7 +159,8 @@ def reconstruct(out_dir: Path, inputs, cfg, options: SfmOptions, source: Path, c
     with tempfile.TemporaryDirectory(prefix="nsim-sfm-") as work, \
             progress_bar(None, "structure from motion", show_progress) as bar:
         result = run_sfm(out_dir / "images", Path(work), options, known_camera=known_camera,
-                         progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"))
+                         progress=lambda phase, done, total: bar.info(f"{phase} {done}/{total}"),
+                         known_poses=known_poses)
     t1 = time.perf_counter()
     result, scale = to_metric(result, timestamps, reference=reference, known_distance=kd,
                               camera_height_m=inputs.camera_height_m, max_dt_s=cfg.max_dt_s, seed=options.seed)

@@ -100,7 +100,9 @@ class Inputs:
     metric: its poses are in metres (PolyCam, Record3D). reference: transforms.json or TUM file
     with metric poses; intrinsics: a transforms.json / YAML / JSON camera file; known_distance:
     (x1, y1, z1, x2, y2, z2, d_m) in the frame of an unscaled run; camera_height_m: the
-    capture's mean camera height.
+    capture's mean camera height. reference_poses: the reference's poses are the cameras' (a
+    motion capture's, say): the frames are not mapped, only their features triangulated at those
+    poses (``nsim.sfm.colmap``, "Known poses"); needs ``reference`` and ``intrinsics``.
     """
 
     source: Path | None = None
@@ -113,6 +115,7 @@ class Inputs:
     images_root: Path | None = None
     skip_missing: bool = False
     metric: bool = False
+    reference_poses: bool = False
 
     def ids(self) -> dict[str, str]:
         return {"capture": self.capture} if self.capture else {}
@@ -125,6 +128,10 @@ class Inputs:
         if sum(scales) > 1:
             raise InputError("reconstruct: give at most one of --reference, --known-distance, --camera-height, "
                              "--metric")
+        if self.reference_poses and (self.reference is None or self.intrinsics is None
+                                     or self.import_transforms is not None):
+            raise InputError("--reference-poses: needs --reference (the cameras' poses) and --intrinsics (the "
+                             "camera), and a video, an image folder or a capture (not --import)")
         for flag, value in (("--metric", self.metric), ("--skip-missing", self.skip_missing)):
             if value and self.import_transforms is None:
                 raise InputError(f"{flag}: only with --import")
@@ -179,6 +186,8 @@ def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, device: str,
         "skip_missing": inputs.skip_missing,
         "device": device,
     }
+    if inputs.reference_poses:  # only when set: the keys of every other run stay as they were
+        extra["reference_poses"] = True
     return ctx.store.action_key(STAGE, VERSION, cfg, inputs.ids(), seed=ctx.seed, extra=extra)
 
 
@@ -214,6 +223,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext) -> Outputs:
             "camera_height_m": inputs.camera_height_m,
             "metric": inputs.metric,
         }
+        if inputs.reference_poses:
+            out.summary["scale_inputs"]["reference_poses"] = True
         # where the file inputs were read (outside the id: the same files elsewhere give the same artifact)
         out.timing["source"] = {name: str(Path(p).resolve()) for name in FILE_INPUTS
                                 if (p := getattr(inputs, name)) is not None}
@@ -279,7 +290,8 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     scale = summary.get("scale_inputs", {})
     kd = scale.get("known_distance")
     inputs = Inputs(capture=manifest["inputs"].get("capture"), known_distance=tuple(kd) if kd else None,
-                    camera_height_m=scale.get("camera_height_m"), metric=bool(scale.get("metric")), **paths)
+                    camera_height_m=scale.get("camera_height_m"), metric=bool(scale.get("metric")),
+                    reference_poses=bool(scale.get("reference_poses")), **paths)
     if file_digests(inputs) != files:
         changed = sorted(n for n, d in file_digests(inputs).items() if files.get(n) != d)
         raise InputError(f"{paths[changed[0]]}: the {changed[0]} has changed since this poses artifact was made from it")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import shutil
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
+from nsim.geometry.transforms import look_at
 from nsim.io.images import write_image
 from nsim.sfm.align import (
     apply_sim3_to_points,
@@ -268,3 +270,45 @@ def test_cuda_sift(pinhole_capture, tmp_path):
     result = run_sfm(pinhole_capture.image_dir, tmp_path / "w", SfmOptions(device="cuda"))
     assert result.stats.device == "cuda"
     _check_accuracy(result, pinhole_capture, 0.5, 0.01)
+
+
+def test_known_poses_triangulate_a_camera_turning_in_place(tmp_path):
+    """A camera turning about itself (centres within some 10 cm): hardly a pair for SfM to start from; with the poses
+    known (motion capture) the features are triangulated there and the poses come back as given."""
+    from tests.sfm.scene import ROOM_XYZ_M, render_sequence
+
+    camera = Camera.pinhole_from_fov(160, 120, 75.0)
+    rng = np.random.default_rng(1)
+    centre = np.array([ROOM_XYZ_M[0] / 2, ROOM_XYZ_M[1] / 2, 1.4])
+    poses = []
+    for k in range(10):
+        a = math.radians(-40 + 8 * k)  # a 72 deg pan towards +x
+        eye = centre + rng.normal(0, 0.05, 3)
+        poses.append(look_at(eye, eye + np.array([math.cos(a), math.sin(a), -0.3]), np.array([0.0, 0.0, 1.0])))
+    poses = np.stack(poses)
+    names = render_sequence(tmp_path / "images", camera, poses)
+    known = dict(zip(names, poses, strict=True))
+    result = run_sfm(tmp_path / "images", tmp_path / "w", SfmOptions(matcher="exhaustive"), known_camera=camera,
+                     known_poses=known)
+    assert result.stats.images_registered == len(names)
+    for name in names:
+        np.testing.assert_allclose(result.cam_to_world[name], known[name], atol=1e-9)
+    assert result.stats.num_points3d > 50
+    # the points lie on the room's walls, floor and boxes: inside the room, away from the camera
+    xyz = result.points_xyz
+    inside = np.all((xyz > -0.1) & (xyz < np.array(ROOM_XYZ_M) + 0.1), axis=1)
+    assert inside.mean() > 0.9
+    assert np.median(np.linalg.norm(xyz - centre, axis=1)) > 1.0
+    with pytest.raises(InputError, match="known poses need a known camera"):
+        run_sfm(tmp_path / "images", tmp_path / "w2", known_poses=known)
+
+
+def test_a_known_camera_is_not_refused_for_large_distortion():
+    """COLMAP drops cameras whose distortion exceeds 1 as diverged; a calibrated fixed camera may (TUM fr1's k3 is
+    1.1633): the bound is lifted when the camera is known and kept when it is refined."""
+    from nsim.sfm.colmap import _mapper_options
+
+    fixed = _mapper_options(SfmOptions(), refine_intrinsics=False)
+    assert min(fixed.max_extra_param, fixed.mapper.max_extra_param, fixed.triangulation.max_extra_param) > 1e6
+    refined = _mapper_options(SfmOptions(), refine_intrinsics=True)
+    assert refined.max_extra_param == 1.0

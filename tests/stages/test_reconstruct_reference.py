@@ -67,3 +67,31 @@ def test_names_mixing_stamps_and_not_are_one_line(tmp_path, no_sfm, capsys):
     code = main(["--workspace", str(tmp_path / "ws"), "reconstruct", str(images), "--reference", str(ref)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "is named by its timestamp but frame_3.png is not" in err[0], err
+
+
+def test_reference_poses_are_the_cameras(tmp_path, monkeypatch, capsys):
+    """--reference-poses: SfM gets every frame's reference pose as a known pose (nothing is mapped); without
+    --intrinsics it is one line, before anything runs."""
+    seen = {}
+
+    def run_sfm(*args, **kwargs):
+        seen.update(kwargs)
+        raise ReachedSfm
+
+    monkeypatch.setattr("nsim.sfm.colmap.run_sfm", run_sfm)
+    stamps = ["1305031102.175304", "1305031102.211214", "1305031102.243211", "1305031102.275326"]
+    images = _folder(tmp_path, [f"{s}.png" for s in stamps])
+    ref = _tum(tmp_path, stamps)
+    code = main(["--workspace", str(tmp_path / "ws"), "reconstruct", str(images), "--reference", str(ref),
+                 "--reference-poses"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--reference-poses: needs --reference" in err[0], err
+    assert not seen
+    intrinsics = tmp_path / "camera.yaml"
+    intrinsics.write_text("{model: PINHOLE, width: 32, height: 24, fx: 30.0, fy: 30.0, cx: 16.0, cy: 12.0}\n")
+    with pytest.raises(ReachedSfm):
+        main(["--workspace", str(tmp_path / "ws"), "reconstruct", str(images), "--reference", str(ref),
+              "--reference-poses", "--intrinsics", str(intrinsics)])
+    known = seen["known_poses"]
+    assert sorted(known) == [f"{s}.png" for s in stamps]
+    np.testing.assert_allclose([known[f"{s}.png"][0, 3] for s in stamps], [0.0, 0.1, 0.2, 0.3])
