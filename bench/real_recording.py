@@ -7,10 +7,10 @@ real Kinect instead of the test room's oracle).
                                    [--capture-poses reference|sfm] [--depth-weight 0.1] [--min-extent-m 0.02]
                                    [--max-residual-deg 3]
 
-``--quick``: 40 capture frames, 6 recorded frames, 300 training steps (about 5 min on 2 cores, the render of the
-12 recorded frames at 640x480 most of it); the default (full) size: 120 capture frames, 24 recorded frames, 8000
-steps of 512 rays with the capture's sparse points as depth supervision (``--depth-weight``), about 60 min on 2
-shared cores (the render of 48 frames half of it).
+``--quick``: 40 capture frames, 6 recorded frames, 300 training steps (about 6 min on 2 cores, the training and the
+render of the 12 recorded frames at 640x480 most of it); the default (full) size: 120 capture frames, 24 recorded frames, 8000
+steps of 512 rays with the capture's sparse points as depth supervision (``--depth-weight``), 46 min on 2
+shared cores (training 17 min, the render of 48 frames 15 min, the SLAM table's SfM 8 min).
 
 SEQUENCE is a TUM RGB-D sequence folder as TUM publishes it: ``rgb/``, ``depth/`` (16-bit PNG, 1/5000 m),
 ``rgb.txt``, ``depth.txt`` and ``groundtruth.txt`` (the motion-capture trajectory of the colour camera's optical
@@ -38,8 +38,8 @@ axis and a capture frame's, and the smallest distance between the centres: media
 1. ``nsim reconstruct CAPTURE --reference groundtruth.txt --reference-poses --intrinsics kinect.json``: the
    capture's frames, named by their TUM stamps so the reference is matched by time, placed at their motion-capture
    poses and their SIFT features triangulated there (``--capture-poses reference``, the default: fr1_rpy's Kinect
-   turns in place, its centre moving some 5 cm, and pycolmap's SfM finds no initial pair in it: every pair is a
-   homography); ``--capture-poses sfm`` runs pycolmap's SfM instead, made metric by the Sim(3) fit of its camera
+   turns in place, its centre moving some 5 cm, and pycolmap's SfM registered none of the quick capture's 40
+   frames, finding no pair to start from among near-homographies); ``--capture-poses sfm`` runs pycolmap's SfM instead, made metric by the Sim(3) fit of its camera
    centres to the motion capture. Either way the scene is metric *and in the motion-capture frame*;
 2. ``nsim train-scene`` on those poses;
 3. a recording folder (``nsim.io.robot_folder``'s layout: ``cameras/kinect/`` colour, ``depth/kinect/`` depth with
