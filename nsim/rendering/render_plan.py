@@ -185,10 +185,6 @@ def plan_recording(sources: RenderSources, cfg: RenderConfig) -> RecordingPlan:
 
     from nsim.rendering import recording as core
 
-    if cfg.image_scale != 1.0 or cfg.lidar_azimuth_scale != 1.0:
-        raise InputError(f"render --recording: image_scale {cfg.image_scale:g}, lidar_azimuth_scale "
-                         f"{cfg.lidar_azimuth_scale:g}: a recording renders at its recorded sizes and points, so "
-                         "that sim and real frames pair one to one; set both to 1")
     if bad := [k for k in cfg.camera_clock_kinds if k not in core.KINDS]:
         raise InputError(f"camera_clock_kinds: {', '.join(map(repr, bad))} is not a stream kind "
                          f"({', '.join(core.KINDS)})")
@@ -204,6 +200,16 @@ def plan_recording(sources: RenderSources, cfg: RenderConfig) -> RecordingPlan:
     except ValueError as e:
         raise InputError(f"sensors: recording {rec.id[:12]} has no stream {e} (it has: "
                          f"{', '.join(doc['streams'])})") from None
+    # a recording renders at its recorded sizes and points, so that sim and real frames pair one to one; a scale
+    # only matters for the streams it scales (a preset's LiDAR scale is no reason to refuse a camera-only recording)
+    kinds = {k.split("/", 1)[0] for k in keys}
+    scales = [(n, v) for n, v, kind in (("image_scale", cfg.image_scale, ("camera", "depth")),
+                                        ("lidar_azimuth_scale", cfg.lidar_azimuth_scale, ("lidar",)))
+              if v != 1.0 and kinds & set(kind)]
+    if scales:
+        raise InputError("render --recording: " + ", ".join(f"{n} {v:g}" for n, v in scales) + ": a recording renders "
+                         "at its recorded sizes and points, so that sim and real frames pair one to one; set "
+                         + (" and ".join(n for n, _ in scales)) + " to 1")
     people = people_clock(sources.trajectory, rec) if sources.trajectory is not None else None
     frames: list[RecordedFrame] = []
     streams: list[RecordedStream] = []

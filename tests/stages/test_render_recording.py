@@ -288,6 +288,8 @@ def _not_metric(store: Store) -> str:
      ["sensors:", "no stream 'back'", "camera/left"]),
     ("not metric", ["--recording", "registration/truth", "--scene", "NOT_METRIC"], ["scale is arbitrary"]),
     ("scaled", ["--recording", "registration/truth", "--set", "image_scale=0.5"], ["image_scale 0.5", "recorded sizes"]),
+    ("lidar scaled", ["--recording", "registration/truth", "--set", "lidar_azimuth_scale=0.5"],
+     ["lidar_azimuth_scale 0.5", "set lidar_azimuth_scale to 1"]),
     ("people without a run", ["--recording", "registration/truth", "--humans", "scene/t"],
      ["--humans needs --trajectory"]),
     ("two modes", ["--recording", "registration/truth", "--poses", "capture/t"],
@@ -311,6 +313,24 @@ def test_bad_input_is_one_line_and_publishes_nothing(world, capsys, case, args, 
     for f in fragments:
         assert f in lines[0], lines[0]
     assert set(store.all_ids()) == before
+
+
+def test_a_scale_refuses_only_the_streams_it_scales(world):
+    """A preset's LiDAR scale is no reason to refuse rendering a recording's cameras (the plan is made, no render)."""
+    from nsim.errors import InputError
+    from nsim.rendering.render_job import ArtifactDir, RenderSources
+    from nsim.rendering.render_plan import RenderConfig, plan_recording
+
+    store, _, _ = world
+    reg = store.resolve("registration/truth")
+    rec = store.get(reg).manifest["inputs"]["recording"]
+    sources = RenderSources(scene=None, trajectory=None, poses=None, registration=ArtifactDir(reg, store.get(reg).path),
+                            recording=ArtifactDir(rec, store.get(rec).path), humans=(), baked=None, rig_file=None)
+    cfg = dataclasses.replace(RenderConfig(), lidar_azimuth_scale=0.05, sensors=("left",))
+    plan = plan_recording(sources, cfg)
+    assert plan.frames and not any(f.stream.startswith("lidar/") for f in plan.frames)
+    with pytest.raises(InputError, match="lidar_azimuth_scale 0.05"):
+        plan_recording(sources, dataclasses.replace(cfg, sensors=("left", "lidar")))
 
 
 # ---------------------------------------------------------------------------------- the core, analytically
