@@ -144,6 +144,8 @@ class HumanSet:
         key = (motion, round(height, 3))
         if key not in self._loops:
             name = motion if motion in DEFAULT_CLIPS else "walk"
+            if name != motion:  # a run simulated before scenarios refused unknown motions
+                log.warning("people: motion %r is not one of %s; drawn with the walk", motion, ", ".join(DEFAULT_CLIPS))
             self._loops[key] = LocomotionLoop.from_clip(default_clip(name, height))
         return self._loops[key]
 

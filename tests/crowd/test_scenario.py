@@ -111,6 +111,8 @@ SCHEMA_BAD = [
     ),
     ("bad-id", _set(("humans", 0, "id"), "a b"), "humans[0].id: 'a b' does not match"),
     ("room", _set(("scene",), {"room": "garage"}), "scene.room: 'garage' is not one of robot-lab"),
+    ("motion", _set(("humans", 2, "motion"), "cmu_131_01"),
+     "humans[2].motion: 'cmu_131_01' is not one of walk, walk_slow, walk_fast, idle"),
     (
         "scene-both",
         _set(("scene",), {"room": "robot-lab", "checkpoint": "scene/x"}),
@@ -616,3 +618,13 @@ def test_inputs_are_not_mutated(tmp_path):
     before = copy.deepcopy(d)
     scenario_from_data(d, source="x", base_dir=tmp_path)
     assert d == before
+
+
+def test_the_schema_s_motions_are_the_clips_nsim_draws():
+    """A motion the schema accepts is one nsim has (never silently the walk), and every clip can be named."""
+    from nsim.crowd.scenario import scenario_validator
+    from nsim.human.gait import DEFAULT_CLIPS
+
+    schema = scenario_validator().schema
+    motion = schema["$defs"]["human"]["properties"]["motion"]
+    assert sorted(motion["enum"]) == sorted(DEFAULT_CLIPS) and motion["default"] in DEFAULT_CLIPS
