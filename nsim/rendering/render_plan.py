@@ -352,13 +352,9 @@ def bake_here(scene: ArtifactDir, device: str, shard_root: Path) -> Path:
     return dest
 
 
-def person_models(trajectory: ArtifactDir, human_ids: Sequence[str], find: Callable[[str], str | None]) -> list[int]:
-    """Per person of the trajectory, the index (into ``human_ids``, the render's ``--humans``) of the human
-    checkpoint that draws it (``nsim.rendering.people.person_checkpoints``: the scenario's
-    ``humans[k].appearance``, else k mod M; ``find``: a name -> its human-checkpoint id or None, ``Store.find``).
-    Checked before any work: a name that is unknown or not among ``human_ids`` is one line."""
+def run_appearances(trajectory: ArtifactDir) -> list[str]:
+    """Per person of the trajectory, the scenario's ``humans[k].appearance`` (``""``: none named)."""
     from nsim.io.npz import read_npz
-    from nsim.rendering.people import person_checkpoints
 
     arrays = read_npz(trajectory.file("trajectory.npz"))
     n = int(np.asarray(arrays["height_m"]).shape[0])
@@ -366,7 +362,17 @@ def person_models(trajectory: ArtifactDir, human_ids: Sequence[str], find: Calla
     if len(appearance) != n:
         raise InputError(f"trajectory {trajectory.id[:12]}: trajectory.npz has {len(appearance)} appearance "
                          f"entries for {n} people")
-    return person_checkpoints(appearance, human_ids, find, source=f"trajectory {trajectory.id[:12]}")
+    return appearance
+
+
+def person_models(trajectory: ArtifactDir, human_ids: Sequence[str], find: Callable[[str], str | None]) -> list[int]:
+    """Per person of the trajectory, the index (into ``human_ids``, the render's ``--humans``) of the human
+    checkpoint that draws it (``nsim.rendering.people.person_checkpoints``: the scenario's
+    ``humans[k].appearance``, else k mod M; ``find``: a name -> its human-checkpoint id or None, ``Store.find``).
+    Checked before any work: a name that is unknown or not among ``human_ids`` is one line."""
+    from nsim.rendering.people import person_checkpoints
+
+    return person_checkpoints(run_appearances(trajectory), human_ids, find, source=f"trajectory {trajectory.id[:12]}")
 
 
 def shard_job(sources: RenderSources, rig: Rig | None, recording: RecordingPlan | None, shards: tuple[tuple[Frame, ...], ...],

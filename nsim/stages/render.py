@@ -173,6 +173,10 @@ def resolve_mode_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     else:
         scene = store.resolve(scene, kind="scene-checkpoint")
     humans = tuple(store.resolve(h, kind="human-checkpoint") for h in inputs.humans)
+    if traj is not None and not humans and (named := render_plan.run_appearances(ArtifactDir(traj, store.get(traj).path))):
+        log.warning("render: trajectory %s has %d people; none is drawn without --humans (the human checkpoints "
+                    "that draw them; the scenario names %s)", traj[:12], len(named),
+                    ", ".join(sorted({n for n in named if n})) or "no appearance")
     return Inputs(trajectory=traj, poses=poses, scene=scene, rig=inputs.rig, humans=humans)
 
 

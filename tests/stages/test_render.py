@@ -114,11 +114,14 @@ def test_fill_paints_only_the_pixels_without_a_return(spot_render, world):
     assert changed > 0
 
 
-def test_cached_rerun_and_other_rig(spot_render, world, capsys):
+def test_cached_rerun_and_other_rig(spot_render, world, capsys, caplog):
     capsys.readouterr()
     assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--trajectory", "trajectory/t",
                  "--scene", "scene/t", "--rig", str(SPOT), "--preset", "tiny"]) == 0
-    assert "cached" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "cached" in err
+    # the run's five people are not drawn without --humans, and the render says so (naming their appearances)
+    assert "has 5 people; none is drawn without --humans" in caplog.text and "human/ana" in caplog.text
     assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--trajectory", "trajectory/in-scene",
                  "--rig", str(RGBD), "--preset", "tiny", "--tag", "render/rgbd"]) == 0
     rgbd = world.get(world.resolve("render/rgbd"))
