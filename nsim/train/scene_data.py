@@ -627,12 +627,7 @@ def check_training_inputs(root: str | os.PathLike, cfg, device_kind: str):
     d = cfg.data
     has_points = any((root / name).is_file() for name in POINT_FILES)
     if d.bounds == "fixed":
-        if d.aabb_min_m is None or d.aabb_max_m is None:
-            raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
-        lo, hi = np.asarray(d.aabb_min_m, float), np.asarray(d.aabb_max_m, float)
-        if not np.all(hi - lo > 1e-3):
-            raise InputError(f"data.bounds: degenerate scene box {lo.tolist()} .. {hi.tolist()}; "
-                             "data.aabb_max_m must exceed data.aabb_min_m on every axis")
+        fixed_box(d)
     elif d.bounds == "points" and not has_points:
         raise InputError(f"{root}: data.bounds is 'points' but there is no sparse point cloud ({', '.join(POINT_FILES)})")
     if cfg.loss.depth_weight > 0 and not has_points:
@@ -650,6 +645,17 @@ def check_training_inputs(root: str | os.PathLike, cfg, device_kind: str):
     return data
 
 
+def fixed_box(cfg: DataConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``data.bounds: fixed``'s box ``(lo, hi)``; InputError when a corner is missing or the box is degenerate."""
+    if cfg.aabb_min_m is None or cfg.aabb_max_m is None:
+        raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
+    lo, hi = np.asarray(cfg.aabb_min_m, float), np.asarray(cfg.aabb_max_m, float)
+    if not np.all(hi - lo > 1e-3):
+        raise InputError(f"data.bounds: degenerate scene box {lo.tolist()} .. {hi.tolist()}; "
+                         "data.aabb_max_m must exceed data.aabb_min_m on every axis")
+    return lo, hi
+
+
 def scene_bounds(data: SceneData, cfg: DataConfig) -> np.ndarray:
     """The scene box ``(2, 3)`` in world units (metres for a metric scene; see :class:`DataConfig`).
 
@@ -659,9 +665,7 @@ def scene_bounds(data: SceneData, cfg: DataConfig) -> np.ndarray:
     if mode == "auto":
         mode = "points" if data.points_xyz is not None and len(data.points_xyz) >= 8 else "cameras"
     if mode == "fixed":
-        if cfg.aabb_min_m is None or cfg.aabb_max_m is None:
-            raise InputError("data.bounds: 'fixed' needs data.aabb_min_m and data.aabb_max_m")
-        lo, hi = np.asarray(cfg.aabb_min_m, float), np.asarray(cfg.aabb_max_m, float)
+        lo, hi = fixed_box(cfg)
     elif mode == "points":
         if data.points_xyz is None or len(data.points_xyz) < 8:
             raise InputError(f"{data.root}: data.bounds is 'points' but there is no sparse point cloud ({', '.join(POINT_FILES)})")
