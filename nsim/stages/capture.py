@@ -76,6 +76,11 @@ class Config:
                                     "(adds masks/ and poses.json: training data for train-human)")
     actor_height_m: float = param(1.75, ge=0.5, le=2.5, help="the person's height (actor: true)")
     actor_speed_mps: float = param(1.2, ge=0.3, le=2.5, help="the person's walking speed (actor: true)")
+    actor_view_deg: float | None = param(
+        None, ge=-360.0, le=360.0,
+        help="actor: true: the camera keeps this side of the person, an angle about it from its heading (0: in "
+             "front, the person walks towards the camera; 90: its left; 180: behind, a camera that follows the "
+             "walker); null: the camera orbits the person (front, sides and back all filmed)")
     phone: PhoneConfig = PhoneConfig()
 
     def __post_init__(self) -> None:
@@ -83,6 +88,8 @@ class Config:
         for name in ("exposure_time_s", "readout_time_s"):
             if getattr(self.phone, name) > frame_s:
                 raise ValueError(f"phone.{name}: expected <= 1 / fps = {frame_s:g} s, got {getattr(self.phone, name)}")
+        if self.actor_view_deg is not None and not self.actor:
+            raise ValueError("actor_view_deg: needs actor: true (it places the camera about the person)")
         if self.actor and self.phone != PhoneConfig():
             raise ValueError("phone: not supported with actor: true (leave every phone setting at its default)")
 
@@ -127,6 +134,7 @@ def actor_config(cfg: Config):
         room=cfg.room, room_seed=cfg.room_seed, camera=cfg.camera, width=cfg.width, height=cfg.height,
         hfov_deg=cfg.hfov_deg, n_frames=cfg.n_frames, fps=cfg.fps, supersample=cfg.supersample, video=cfg.video,
         actor_height_m=cfg.actor_height_m, actor_speed_mps=cfg.actor_speed_mps,
+        **({} if cfg.actor_view_deg is None else {"view_deg": cfg.actor_view_deg, "orbit_deg_s": 0.0}),
     )
 
 
@@ -135,6 +143,8 @@ def recorded_config(cfg: Config) -> dict[str, Any]:
     data = to_dict(cfg)
     if cfg.phone == PhoneConfig():
         del data["phone"]
+    if cfg.actor_view_deg is None:  # a field added later: at its default the key is what it was
+        del data["actor_view_deg"]
     return data
 
 

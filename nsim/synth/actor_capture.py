@@ -78,6 +78,9 @@ class ActorCaptureConfig:
     camera_height_m: mean camera height (handheld at chest or eye level).
     orbit_deg_s: how fast the camera goes round the person (relative to the person's heading;
         24 deg/s is one turn in 15 s).
+    view_deg: where the camera starts, as an angle about the person relative to its heading (0: in front,
+        the person walks towards the camera; 90: at the person's left; 180: behind, a camera that follows
+        the walker); None: a seeded angle. With ``orbit_deg_s = 0`` the camera keeps that side.
     path_clearance_m: the walk keeps at least this far (2D) from walls and furniture.
     """
 
@@ -98,6 +101,7 @@ class ActorCaptureConfig:
     camera_height_m: float = 1.5
     orbit_deg_s: float = 24.0
     path_clearance_m: float = 0.65
+    view_deg: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "follow_distance_m", tuple(float(v) for v in self.follow_distance_m))
@@ -116,6 +120,7 @@ class ActorCaptureConfig:
             "camera_height_m": 0.5 <= self.camera_height_m <= 2.2,
             "orbit_deg_s": math.isfinite(self.orbit_deg_s) and abs(self.orbit_deg_s) <= 180.0,
             "path_clearance_m": 0.3 <= self.path_clearance_m <= 2.0,
+            "view_deg": self.view_deg is None or (math.isfinite(self.view_deg) and abs(self.view_deg) <= 360.0),
         }
         for name, ok in checks.items():
             if not ok:
@@ -319,7 +324,9 @@ def follow_camera(spec: RoomSpec, focus_xyz_m: np.ndarray, heading_rad: np.ndarr
     blocked = blocked.reshape(N, S)
     # unary: orbit angle, preferred distance, blocked view
     t_s = np.arange(N) / fps
-    phi0 = rng.uniform(0.0, 2.0 * np.pi)
+    phi0 = rng.uniform(0.0, 2.0 * np.pi)  # drawn in any case: the wobbles below come from the same generator
+    if cfg.view_deg is not None:
+        phi0 = math.radians(cfg.view_deg)
     wanted = heading + phi0 + np.radians(cfg.orbit_deg_s) * t_s  # (N,)
     r_pref = 0.5 * (lo + hi)
     unary = (3.0 * (1.0 - np.cos(A[None] - wanted[:, None])) + ((R[None] - r_pref) / max(hi - lo, 0.5)) ** 2

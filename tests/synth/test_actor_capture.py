@@ -63,6 +63,21 @@ def test_camera_follows_at_distance_and_keeps_clear():
     assert (np.linalg.norm(np.diff(eye, axis=0), axis=1) * cfg.fps).max() < 2.5
 
 
+@pytest.mark.parametrize("view_deg", [0.0, 90.0, 180.0])
+def test_camera_keeps_the_side_it_is_given(view_deg):
+    """view_deg with no orbit: the camera stays in front of (0), at the left of (90) or behind (180) the walker."""
+    spec = make_room("robot-lab", seed=0)
+    cfg = ActorCaptureConfig(n_frames=60, orbit_deg_s=0.0, view_deg=view_deg)
+    clip, _ = actor_motion(spec, cfg, seed=3)
+    T = clip.joint_transforms()
+    pelvis = T[:, 0, :3, 3]
+    heading = np.unwrap(np.arctan2(T[:, 0, 1, 0], T[:, 0, 0, 0]))
+    eye = follow_camera(spec, pelvis, heading, cfg.fps, seed=3, cfg=cfg)[:, :3, 3]
+    rel = np.arctan2(eye[:, 1] - pelvis[:, 1], eye[:, 0] - pelvis[:, 0]) - heading
+    off = np.degrees(np.abs(np.angle(np.exp(1j * (rel - np.radians(view_deg))))))
+    assert np.median(off) < 30.0, off
+
+
 def test_files_and_masks(capture):
     out = capture.out_dir
     n = TINY.n_frames
