@@ -45,6 +45,7 @@ Core API (what a ``train_human`` stage calls)::
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -663,6 +664,23 @@ class HumanTrainer(ResumableTrainer):
         return img
 
 
+def score_model(model: HumanModel, data: HumanTrainData, cfg: TrainHumanConfig, device: str = "cpu",
+                views: list[int] | None = None, keep_images: bool = False) -> dict[str, Any]:
+    """A trained ``model`` scored on frames of other ``data`` at their given poses, as :meth:`HumanTrainer.evaluate`
+    scores held-out views (PSNR in the person's box, mask IoU, the baselines): every frame, or ``views``. E.g. another
+    capture of the same walk filmed from a side the training never saw (``bench/human_sides.py``). ``cfg``: the
+    training's (its output, data and thread settings; the model's own config replaces ``cfg.model``); no frame of
+    ``data`` is trained on, so its mean-colour baseline is the mean person colour of ``data``'s own frames, and
+    neither pose refinement nor the held-out fit runs."""
+    every = dataclasses.replace(cfg.data, holdout_every=0, holdout_last_fraction=0.0)
+    scoring = dataclasses.replace(cfg, model=model.cfg, data=every, refine=HumanRefineConfig())
+    trainer = HumanTrainer(data, scoring, device)
+    trainer.model.load_state_dict(model.state_dict())
+    trainer.eval_ids = np.arange(data.n_frames)
+    with loop.torch_threads(trainer.loop_threads()):
+        return trainer.evaluate(views, keep_images)
+
+
 # ====================================================================== metrics
 def mask_iou(pred: np.ndarray, gt: np.ndarray) -> float:
     """Intersection over union of two boolean masks (1 when both are empty)."""
@@ -825,6 +843,7 @@ __all__ = [
     "mask_box",
     "mask_iou",
     "psnr",
+    "score_model",
     "train_human",
     "write_gif",
 ]
