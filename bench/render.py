@@ -170,7 +170,7 @@ def spot_render(ctx: RunContext, traj: str, scene_id: str, args, sensors: tuple[
         "lidar_azimuth_scale": args.lidar_scale, "noise": False, "video": False, "sensors": list(sensors),
         "shard_frames": max(1, args.ticks // 4), "method": args.method, "march": {"step_m": args.march_step}})
     t0 = time.perf_counter()
-    out = render.run(render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), cfg,
+    out = render.run(render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT, people=False), cfg,
                      dataclasses.replace(ctx, force=force), engine=engine)
     return out.render, time.perf_counter() - t0
 
@@ -451,7 +451,7 @@ def culling_bench(ctx: RunContext, traj: str, scene_id: str, human: str, args) -
         meter.reset()
         t0, c0 = time.perf_counter(), time.process_time()
         with meter:
-            out = render.run(render.Inputs(trajectory=tr, scene=scene_id, rig=SPOT, humans=humans),
+            out = render.run(render.Inputs(trajectory=tr, scene=scene_id, rig=SPOT, humans=humans, people=bool(humans)),
                              cfg(culling, sensors, scale, ticks), forced)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         return {"render": out.render, "wall_s": wall, "cpu_s": cpu, "seconds": dict(meter.seconds),
@@ -693,7 +693,7 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
     # 3. Spot along spot_run: both renderers against each other and against the oracle
     over = {"tick_stride": args.tick_stride, "max_frames": args.ticks, "image_scale": args.image_scale,
             "lidar_azimuth_scale": args.lidar_scale, "shard_frames": max(1, args.ticks)}
-    spot = {m: stage(m, render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), over) for m in ("proposal", "baked")}
+    spot = {m: stage(m, render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT, people=False), over) for m in ("proposal", "baked")}
     art = {m: store.get(a) for m, (a, _) in spot.items()}
     rig = Rig.from_resolved(json.loads(art["baked"].file("rig.json").read_text()))
     from nsim.io.tum import read_tum
@@ -735,9 +735,9 @@ def baked_bench(ctx: RunContext, cap_id: str, scene_id: str, traj: str, oracle, 
     res["speed"] = _rays_per_s(ctx, scene_id, baked_id, traj, args)
     tick = {"tick_stride": args.tick_stride, "max_frames": 1, "image_scale": args.tick_scale, "lidar_azimuth_scale": 1.0,
             "shard_frames": 1}
-    stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), {**tick, "image_scale": 0.05})  # warm-up
-    _, res["speed"]["spot_tick_s"] = stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT), tick)
-    _, res["speed"]["lidar_sweep_s"] = stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT),
+    stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT, people=False), {**tick, "image_scale": 0.05})  # warm-up
+    _, res["speed"]["spot_tick_s"] = stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT, people=False), tick)
+    _, res["speed"]["lidar_sweep_s"] = stage("baked", render.Inputs(trajectory=traj, scene=scene_id, rig=SPOT, people=False),
                                              {**tick, "sensors": ["lidar"]})
     res["speed"]["tick_image_scale"] = args.tick_scale
     sp = res["speed"]

@@ -121,13 +121,14 @@ def run_demo(workspace: Path, preset: str, seed: int, device: str) -> None:
                          overrides=[] if tiny else ["optim.steps=600", "optim.num_threads=2"])
     human = step("train-human", lambda: train_human.run(train_human.Inputs(capture=act), th_cfg, ctx)).human
     ctx.store.set_ref("human/demo", human)
+    ctx.store.set_ref("human/ana", human)  # the look spot_run.json names for its first person
 
-    # Spot's five fisheye cameras (with depth) and its LiDAR along the run, in the trained scene,
-    # with the scenario's people drawn by the human NeRF.
+    # Spot's five fisheye cameras (with depth) and its LiDAR along the run, in the trained scene, with the
+    # scenario's people: ana drawn by the human NeRF (her scenario entry names human/ana), the four others,
+    # whose looks this workspace lacks, with the default look (a warning line says so).
     ren_preset = "tiny" if tiny else "cpu"
     ren_cfg = load_config(render.Config, stage="render", preset=ren_preset)
-    ren_inputs = render.Inputs(trajectory=traj_id, scene=scene_id, rig=repo / "nsim" / "configs" / "robots" / "spot.yaml",
-                               humans=(human,))
+    ren_inputs = render.Inputs(trajectory=traj_id, scene=scene_id, rig=repo / "nsim" / "configs" / "robots" / "spot.yaml")
     spot = step("render (spot rig, people)", lambda: render.run(ren_inputs, ren_cfg, ctx)).render
     ctx.store.set_ref("render/demo-spot-run", spot)
 

@@ -513,7 +513,8 @@ def run_recording(ctx: RunContext, size: str, request: RecordingRequest, spot: S
     twin = None
     if request.log is None:  # the log is the Spot run's: the same sensors at the same ticks against the oracle
         tw_cfg = rec_cfg(render.Config, "render", size, "render", twin_overrides(size, truth))
-        tw_inputs = render.Inputs(trajectory=spot.trajectory, scene=scene, rig=REPO / "nsim" / "configs" / "robots" / "spot.yaml")
+        tw_inputs = render.Inputs(trajectory=spot.trajectory, scene=scene, rig=REPO / "nsim" / "configs" / "robots" / "spot.yaml",
+                                  people=False)  # the log's twin: its sensors alone, as the oracle's log has them
         twin = step("render (twin of the log, oracle)", lambda: render.run(tw_inputs, tw_cfg, ctx)).render
         store.set_ref("render/paper-recording-twin", twin)
 

@@ -23,7 +23,9 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--rig", type=click.Path(dir_okay=False), default=None,
               help="Robot rig file (trajectory mode), e.g. nsim/configs/robots/spot.yaml.")
 @click.option("--humans", multiple=True, help="Human checkpoint(s) that draw the trajectory's people (repeatable; with "
-                                               "--recording, their clock: people_time_offset_s).")
+                                               "--recording, their clock: people_time_offset_s). Default: the "
+                                               "checkpoints the scenario's appearances name, else the default look.")
+@click.option("--no-people", is_flag=True, help="Draw none of the trajectory's people (the robot alone in the scene).")
 @click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
               help="Who renders the shards (never changes the result).")
 @click.option("--address", default=None, help="--engine ray: a cluster to join (else $RAY_ADDRESS, else a local instance).")
@@ -38,7 +40,7 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
               help="--trajectory: also export the render as a ROS 2 bag, a new directory (its parent must exist).")
 @click.pass_context
 def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, poses, recording, scene, baked, rig, humans,
-            engine, address, workers, gpus_per_worker, cpus_per_worker, max_restarts, rosbag_path):
+            no_people, engine, address, workers, gpus_per_worker, cpus_per_worker, max_restarts, rosbag_path):
     """Render RGB, depth and LiDAR of a rig along a trajectory (or a poses artifact's cameras, or exactly the
     sensors of a registered robot recording)."""
     from nsim.distributed import check_ray
@@ -66,7 +68,8 @@ def command(click_ctx, preset, config_file, overrides, force, tag, trajectory, p
     eng = EngineConfig(engine=engine, address=address, workers=workers, num_gpus_per_worker=gpus_per_worker,
                        num_cpus_per_worker=cpus_per_worker, max_restarts=max_restarts)
     inputs = render.Inputs(trajectory=trajectory, poses=poses, scene=scene, rig=Path(rig) if rig else None,
-                           humans=tuple(humans), registration=recording, baked=baked)
+                           humans=tuple(humans), registration=recording, baked=baked,
+                           people=not no_people)
     out = render.run(inputs, cfg, ctx, engine=eng)
     if out.shards_reused:
         click.echo(f"resumed: {out.shards_reused} shard(s) were already rendered", err=True)

@@ -79,7 +79,9 @@ class RenderSources:
     recording: ArtifactDir | None = None
     """Recording mode: the recording (``nsim import-log``) whose sensors are rendered."""
     humans: tuple[ArtifactDir, ...] = ()
-    """The human checkpoints, in ``--humans`` order."""
+    """The human checkpoints that draw the people (``--humans``, or those the scenario's appearances name)."""
+    people: bool = False
+    """Whether the trajectory's people are drawn (by ``humans`` or the default look): masks and boxes come too."""
     baked: ArtifactDir | None = None
     """A baked scene of ``scene`` (``--baked``, ``nsim bake``)."""
     rig_file: Path | None = None
@@ -226,7 +228,8 @@ class ShardJob:
     """The human checkpoints' folders (empty: no people)."""
     person_model: tuple[int, ...] | None
     """Per person of the trajectory, the index into ``human_dirs`` of the checkpoint that draws it
-    (``nsim.rendering.people.person_checkpoints``); None: checkpoint k mod M."""
+    (``nsim.rendering.people.person_checkpoints``), or ``nsim.rendering.default_look.DEFAULT_LOOK`` (the
+    default look); None: checkpoint k mod M."""
     trajectory_npz: Path | None
     """With people: the run's ``trajectory.npz`` (their positions, headings, gait phases, heights)."""
     rig: Rig | None

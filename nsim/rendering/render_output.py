@@ -22,8 +22,8 @@ Layout (``NNNNNN`` = tick index in the trajectory, or frame index in the poses):
     <camera>/depth/NNNNNN.exr    float32 channel Z: the rig's depth kind (z-depth along the optical
                                  axis unless the rig says range), metres; inf = no return, NaN =
                                  no valid measurement; stated in the header (nsim_depth)
-    <camera>/mask/NNNNNN.png     (with humans) 16-bit instance mask: 0 background, k = human k
-    <camera>/boxes.json          (with humans) COCO-style person boxes per frame
+    <camera>/mask/NNNNNN.png     (with people) 16-bit instance mask: 0 background, k = human k
+    <camera>/boxes.json          (with people) COCO-style person boxes per frame
     <lidar>/scan/NNNNNN.exr      organised sweep (rows = beams, cols = azimuth): X Y Z (sensor
                                  frame), range, intensity (= opacity), ring; see nsim.io.lidar_exr
     <lidar>/scan/NNNNNN.ply      the returns as a point cloud (sensor frame)
@@ -139,7 +139,7 @@ def assemble(out_dir: Path, sources: RenderSources, cfg: RenderConfig, rig: Rig 
         summary["sensors"] = [s.name for s in rig.sensors]
         summary["rig"] = rig.name
         summary["rig_file"] = str(sources.rig_file)
-        if sources.humans:
+        if sources.people:
             from nsim.io.coco import coco_from_mask_files, write_coco_json
 
             for s in rig.sensors:
@@ -161,7 +161,7 @@ def _assemble_recording(out_dir: Path, sources: RenderSources, cfg: RenderConfig
         mine = [f for f in frames if f.stream == st.key]
         per_stream.append({"name": st.name, "kind": st.kind, "color": st.color,
                            "skipped_outside_trajectory": st.skipped_outside_trajectory,
-                           **({"people_outside_run": st.people_outside_run} if sources.humans else {}),
+                           **({"people_outside_run": st.people_outside_run} if sources.people else {}),
                            "frames": [f.to_json() for f in mine]})
     meta: dict[str, Any] = {
         "mode": "recording",
@@ -184,7 +184,7 @@ def _assemble_recording(out_dir: Path, sources: RenderSources, cfg: RenderConfig
         },
         "per_frame": rows,
     }
-    if sources.humans:
+    if sources.people:
         meta["people"] = _recording_people(out_dir, sources, cfg, recording)
         meta["conventions"].update({
             "people_time_s": "the run's simulation time whose people a frame shows: run_start_s + (odom_time_ns - "
@@ -201,7 +201,7 @@ def _assemble_recording(out_dir: Path, sources: RenderSources, cfg: RenderConfig
     summary = {"mode": "recording", "frames": len(frames), "humans": len(sources.humans),
                "streams": {st.key: len(by_stream[st.key]) for st in streams},
                "skipped_outside_trajectory": sum(st.skipped_outside_trajectory for st in streams)}
-    if sources.humans:
+    if sources.people:
         summary["people_outside_run"] = sum(st.people_outside_run for st in streams)
     return summary
 

@@ -25,7 +25,7 @@ import json
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -375,12 +375,83 @@ def person_models(trajectory: ArtifactDir, human_ids: Sequence[str], find: Calla
     return person_checkpoints(run_appearances(trajectory), human_ids, find, source=f"trajectory {trajectory.id[:12]}")
 
 
+def scenario_people(trajectory: ArtifactDir, find: Callable[[str], str | None]
+                    ) -> tuple[tuple[str, ...], list[int], list[str]]:
+    """Who draws each person of the trajectory when the render gives no ``--humans``: the human checkpoint its
+    scenario's ``humans[k].appearance`` names (``find``: a name -> its human-checkpoint id or None,
+    ``Store.find``), else the default look (``nsim.rendering.default_look``).
+
+    Returns the checkpoints named (ids, in order of first use), per person an index into them or
+    ``DEFAULT_LOOK``, and labels of the people drawn with the default look (``humans[k]``, with the name the
+    workspace does not hold). An ambiguous or dangling name is one ``InputError`` line, before any work."""
+    from nsim.errors import NsimError
+    from nsim.rendering.default_look import DEFAULT_LOOK
+
+    source = f"trajectory {trajectory.id[:12]}"
+    ids: list[str] = []
+    person_model, defaulted = [], []
+    for k, name in enumerate(run_appearances(trajectory)):
+        try:
+            hid = find(name) if name else None
+        except NsimError as err:  # ambiguous, a ref to a missing artifact, another kind
+            raise InputError(f"{source}: humans[{k}].appearance {name!r}: {err}") from None
+        if hid is None:
+            person_model.append(DEFAULT_LOOK)
+            defaulted.append(f"humans[{k}] {name!r} (not in this workspace)" if name else f"humans[{k}]")
+            continue
+        if hid not in ids:
+            ids.append(hid)
+        person_model.append(ids.index(hid))
+    return tuple(ids), person_model, defaulted
+
+
+def run_people(trajectory: ArtifactDir, humans: Sequence[str], find: Callable[[str], str | None]
+               ) -> tuple[tuple[str, ...], list[int], list[str]]:
+    """Who draws each person of the trajectory: ``humans`` (``--humans``, ``person_models``) when given, else the
+    scenario's appearances and the default look (``scenario_people``, said in one warning line). Returns the
+    human checkpoints (ids), per person an index into them or ``DEFAULT_LOOK``, the default-look labels."""
+    if humans:
+        return tuple(humans), person_models(trajectory, humans, find), []
+    from nsim.rendering.default_look import DEFAULT_LOOK_SEED
+
+    ids, people, defaulted = scenario_people(trajectory, find)
+    if defaulted:
+        log.warning("render: %d of %d people drawn with the default look (the test-room mannequin, seed %d): %s; "
+                    "a scenario's humans[k].appearance or --humans names a human checkpoint",
+                    len(defaulted), len(people), DEFAULT_LOOK_SEED, ", ".join(defaulted))
+    return ids, people, defaulted
+
+
+def people_differ_from_default(person_model: Sequence[int] | None, n_humans: int) -> bool:
+    """Whether ``person_model`` (``run_people``) draws someone otherwise than checkpoint k mod M would (then the
+    render's key records it: the scenario's names resolved, the default look)."""
+    from nsim.rendering.people import default_checkpoint
+
+    return person_model is not None and list(person_model) != [default_checkpoint(k, max(1, n_humans))
+                                                               for k in range(len(person_model))]
+
+
+def people_summary(humans: Sequence[str], people: Sequence[int] | None, defaulted: Sequence[str], source: str) -> dict:
+    """What ``render.json``'s summary says of a trajectory's people: who drew each (``run_people``) and from where
+    (``people_from``: ``humans``, the render's ``--humans``; ``scenario``, its appearances and the default look;
+    ``none``, ``--no-people``): a rebuild draws them alike."""
+    from nsim.rendering.default_look import DEFAULT_LOOK, DEFAULT_LOOK_SEED
+
+    out: dict[str, Any] = {"people_from": source}
+    if people is not None:
+        out["people_checkpoints"] = [humans[m] if m != DEFAULT_LOOK else "default look" for m in people]
+    if defaulted:
+        out["default_look"] = {"seed": DEFAULT_LOOK_SEED, "people": list(defaulted)}
+    return out
+
+
 def shard_job(sources: RenderSources, rig: Rig | None, recording: RecordingPlan | None, shards: tuple[tuple[Frame, ...], ...],
               seed: int, device: str, baked_dir: Path | None, person_model: Sequence[int] | None) -> ShardJob:
     """What every shard worker needs: the ``shards`` of frames, the inputs' folders, the adapted ``rig`` (or
     None) as its ``rig.json`` reads back (``Rig.from_resolved``: the workers render what the artifact records),
     the ``recording``'s streams (or None), the run's ``seed`` and torch ``device``, the baked scene's folder
-    (``method: baked``) and which checkpoint draws each person (``person_models``; None: k mod M)."""
+    (``method: baked``) and which checkpoint draws each person (``person_models`` or ``scenario_people``, where
+    ``DEFAULT_LOOK`` is the default look; None: k mod M)."""
     from nsim.sensors.rig import Rig
 
     return ShardJob(

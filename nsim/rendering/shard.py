@@ -85,8 +85,14 @@ class ShardRenderer:
             if self.cfg.background != "scene":
                 self.baked = dataclasses.replace(self.baked, background=self.cfg.background)
         self.rig = job.rig if job.rig is None or cfg.noise else _without_noise(job.rig)
-        self.humans = (HumanSet.load(job.human_dirs, job.trajectory_npz, self.device, job.person_model)
-                       if job.human_dirs else None)
+        self.humans = None  # the run's people, each drawn by its checkpoint or the default look
+        if job.trajectory_npz is not None and (job.human_dirs or job.person_model):
+            from nsim.io.npz import read_npz
+            from nsim.rendering.default_look import people_models
+
+            arrays = read_npz(Path(job.trajectory_npz))
+            models, person_model = people_models(job.human_dirs, job.person_model, arrays["height_m"], self.device)
+            self.humans = HumanSet(models, arrays, self.device, person_model)
         self.streams = {}  # recording mode: stream key -> its CameraSensor (camera, depth) or None (LiDAR)
         for st in job.streams or ():
             self.streams[st.key] = _stream_sensor(st)

@@ -13,12 +13,11 @@ Three modes:
     camera: what ``nsim evaluate`` compares with the captured images.
 ``recording``
     Exactly the recorded sensors of a ``registration`` (``nsim register-log``) of a ``recording``
-    (``nsim import-log``), so that sim and real frames pair one to one: each kept frame at its stamp
-    moved onto the odometry clock, the body pose interpolated in the registration's trajectory, the
-    stream's own camera model (LiDAR: one ray per recorded point); no sensor noise. With
-    ``--trajectory`` and ``--humans`` the run's people are drawn too, posed at each frame's instant;
-    the clocks' rules are in :mod:`nsim.rendering.recording` and
-    :meth:`nsim.rendering.people.HumanSet.joint_transforms_at`.
+    (``nsim import-log``), so that sim and real frames pair one to one (the stream's own camera model, no
+    sensor noise; :mod:`nsim.rendering.recording`). With ``--trajectory`` the run's people are drawn too.
+
+A run's people are drawn by ``--humans``, else by the human checkpoints their scenario's appearances name,
+else with the default look (``nsim.rendering.default_look``, one warning line); ``--no-people``: nobody.
 
 The scene is rendered by the NeRF (``method: proposal``, the default, or ``march``) or from the scene baked
 into a sparse voxel grid (``method: baked``, ``nsim.rendering.baked``; the ``--baked`` artifact of ``nsim
@@ -85,6 +84,7 @@ class Inputs:
     humans: tuple[str, ...] = ()
     registration: str | None = None
     baked: str | None = None
+    people: bool = True  # False (--no-people): none of the trajectory's people is drawn
 
     def ids(self) -> dict[str, str]:
         named = {"baked": self.baked, "trajectory": self.trajectory, "poses": self.poses,
@@ -103,6 +103,8 @@ class Outputs:
 # ---------------------------------------------------------------------------------- resolving inputs
 def resolve_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     """Artifact ids resolved and checked (kinds, the scene checkpoint's presence, a baked scene of that scene)."""
+    if inputs.humans and not inputs.people:
+        raise InputError(f"render: --no-people draws nobody; --humans {' '.join(inputs.humans)} draws them: give one")
     out = resolve_mode_inputs(inputs, ctx)
     if inputs.baked is None:
         return out
@@ -173,11 +175,7 @@ def resolve_mode_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     else:
         scene = store.resolve(scene, kind="scene-checkpoint")
     humans = tuple(store.resolve(h, kind="human-checkpoint") for h in inputs.humans)
-    if traj is not None and not humans and (named := render_plan.run_appearances(ArtifactDir(traj, store.get(traj).path))):
-        log.warning("render: trajectory %s has %d people; none is drawn without --humans (the human checkpoints "
-                    "that draw them; the scenario names %s)", traj[:12], len(named),
-                    ", ".join(sorted({n for n in named if n})) or "no appearance")
-    return Inputs(trajectory=traj, poses=poses, scene=scene, rig=inputs.rig, humans=humans)
+    return Inputs(trajectory=traj, poses=poses, scene=scene, rig=inputs.rig, humans=humans, people=inputs.people)
 
 
 def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
@@ -196,9 +194,6 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
     if inputs.humans and inputs.trajectory is None:
         raise InputError("render --recording: --humans needs --trajectory, the nsim simulate run whose people they "
                          "draw (a recording has no people of its own)")
-    if inputs.trajectory is not None and not inputs.humans:
-        raise InputError(f"render --recording: --trajectory {inputs.trajectory} only supplies the people; pass "
-                         "--humans (the human checkpoints that draw them)")
     traj = store.resolve(inputs.trajectory, kind="trajectory") if inputs.trajectory is not None else None
     if inputs.rig is not None:
         raise InputError(f"render --recording: --rig {inputs.rig}: a recording renders its own recorded sensors")
@@ -214,15 +209,12 @@ def resolve_recording_inputs(inputs: Inputs, ctx: RunContext) -> Inputs:
         log.warning("render --recording: scene %s was trained on poses %s, the recording registered to poses %s: "
                     "their worlds must agree", scene[:12], trained_on[:12], registered_to[:12])
     humans = tuple(store.resolve(h, kind="human-checkpoint") for h in inputs.humans)
-    return Inputs(scene=scene, registration=reg, trajectory=traj, humans=humans)
+    return Inputs(scene=scene, registration=reg, trajectory=traj, humans=humans, people=inputs.people)
 
 
 def action_key(inputs: Inputs, cfg: Config, ctx: RunContext, rig, person_model=None) -> str:
-    from nsim.rendering.people import default_checkpoint
-
     extra = {"device": device_kind(ctx.device)}
-    if person_model is not None and person_model != [default_checkpoint(k, len(inputs.humans))
-                                                     for k in range(len(person_model))]:
+    if render_plan.people_differ_from_default(person_model, len(inputs.humans)):
         extra["people"] = person_model  # the scenario names checkpoints (refs can move: the resolved choice)
     if cfg.method == "baked" and inputs.baked is None:  # baked here: with BakeConfig()'s settings
         from nsim.config import to_dict
@@ -255,10 +247,14 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
 
         rig = render_plan.adapt_rig(Rig.load(inputs.rig), cfg)
     sources = sources_of(inputs, ctx)
-    people = None  # which human checkpoint draws each person of the run
-    if inputs.humans and inputs.trajectory is not None:
-        people = render_plan.person_models(sources.trajectory, inputs.humans,
-                                           lambda name: store.find(name, kind="human-checkpoint"))
+    people, defaulted = None, []  # which human checkpoint (or the default look) draws each person of the run
+    people_from = ("humans" if inputs.humans else "scenario") if inputs.people else "none"
+    if inputs.trajectory is not None and inputs.people:
+        humans, people, defaulted = render_plan.run_people(sources.trajectory, inputs.humans,
+                                                           lambda name: store.find(name, kind="human-checkpoint"))
+        if humans != inputs.humans:
+            inputs = dataclasses.replace(inputs, humans=humans)
+        sources = dataclasses.replace(sources_of(inputs, ctx), people=bool(people))
     key = action_key(inputs, cfg, ctx, rig, people)
     if (hit := cached(ctx, key)) is not None:
         return Outputs(render=hit, cache_hit=True)
@@ -281,8 +277,8 @@ def run(inputs: Inputs, cfg: Config, ctx: RunContext, engine=None) -> Outputs:
                        seed=ctx.seed) as out:
         summary = assemble(out.dir, sources, cfg, rig, frames, [done[i] for i in range(len(shards))], recording)
         out.summary.update(summary)
-        if people is not None:  # which human checkpoint drew each person (person_checkpoints)
-            out.summary["people_checkpoints"] = [inputs.humans[m] for m in people]
+        if inputs.trajectory is not None:  # which human checkpoint (or the default look) drew each person
+            out.summary.update(render_plan.people_summary(inputs.humans, people, defaulted, people_from))
         if cfg.method == "baked":
             out.summary["baked_scene"] = inputs.baked or "baked by the render (BakeConfig defaults)"
     shutil.rmtree(shard_root, ignore_errors=True)
@@ -293,8 +289,10 @@ def rebuild(manifest: dict[str, Any], ctx: RunContext) -> str:
     summary = manifest.get("summary", {})
     rig_file = summary.get("rig_file")
     ids = manifest["inputs"]
+    people_from = summary.get("people_from")  # scenario: no --humans, drawn again alike; none: --no-people
+    humans = tuple(ids[f"human{i}"] for i in range(sum(k.startswith("human") for k in ids)))
     inputs = Inputs(trajectory=ids.get("trajectory"), poses=ids.get("poses"), scene=ids.get("scene"),
-                    rig=Path(rig_file) if rig_file else None,
-                    humans=tuple(ids[k] for k in sorted(ids) if k.startswith("human")),
-                    registration=ids.get("registration"), baked=ids.get("baked"))
+                    rig=Path(rig_file) if rig_file else None, humans=() if people_from == "scenario" else humans,
+                    registration=ids.get("registration"), baked=ids.get("baked"),
+                    people=people_from not in (None, "none") or bool(humans))
     return rerun(run, inputs, Config, manifest, ctx).render

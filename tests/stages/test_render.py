@@ -120,8 +120,13 @@ def test_cached_rerun_and_other_rig(spot_render, world, capsys, caplog):
                  "--scene", "scene/t", "--rig", str(SPOT), "--preset", "tiny"]) == 0
     err = capsys.readouterr().err
     assert "cached" in err
-    # the run's five people are not drawn without --humans, and the render says so (naming their appearances)
-    assert "has 5 people; none is drawn without --humans" in caplog.text and "human/ana" in caplog.text
+    # without --humans the run's five people are drawn with the default look (their scenario's appearances are
+    # not in this workspace), said in one line naming them, and recorded
+    assert "5 of 5 people drawn with the default look" in caplog.text
+    assert "humans[0] 'human/ana' (not in this workspace)" in caplog.text
+    summary = spot_render.manifest["summary"]
+    assert summary["people_checkpoints"] == ["default look"] * 5 and summary["people_from"] == "scenario"
+    assert summary["default_look"]["seed"] == 0 and len(summary["default_look"]["people"]) == 5
     assert main(["--workspace", str(world.root), "--device", "cpu", "render", "--trajectory", "trajectory/in-scene",
                  "--rig", str(RGBD), "--preset", "tiny", "--tag", "render/rgbd"]) == 0
     rgbd = world.get(world.resolve("render/rgbd"))

@@ -95,7 +95,8 @@ def render_with(world, traj: str, sensors, culling: bool, humans: bool) -> str:
     cfg = from_dict(render.Config, {"tick_stride": 10, "max_frames": 2, "shard_frames": 2, "image_scale": 0.05,
                                     "lidar_azimuth_scale": 0.02, "noise": False, "video": False,
                                     "sensors": list(sensors), "culling": culling, "march": {"step_m": 0.05}})
-    inputs = render.Inputs(trajectory=traj, scene=world["scene"], rig=SPOT, humans=(world["human"],) if humans else ())
+    inputs = render.Inputs(trajectory=traj, scene=world["scene"], rig=SPOT, humans=(world["human"],) if humans else (),
+                           people=humans)  # humans False: nobody (--no-people)
     return render.run(inputs, cfg, world["ctx"]).render
 
 
@@ -189,7 +190,7 @@ def test_lidar_culls_people_beyond_its_range(world, human_calls, tmp_path):
                                         "lidar_azimuth_scale": 0.02, "noise": False, "video": False,
                                         "sensors": ["lidar"], "culling": True})
         inputs = render.Inputs(trajectory=world["behind"], scene=world["scene"], rig=rig_file,
-                               humans=(world["human"],) if humans else ())
+                               humans=(world["human"],) if humans else (), people=humans)
         return render.run(inputs, cfg, world["ctx"]).render
 
     store = world["store"]
@@ -199,3 +200,36 @@ def test_lidar_culls_people_beyond_its_range(world, human_calls, tmp_path):
     assert any("/scan/" in k for k in short)
     scan(True, SPOT)  # full range: the people behind the robot are within it
     assert human_calls["n"] > 0
+
+
+def test_render_without_humans_draws_the_scenarios_people(world, caplog, human_calls):
+    """No --humans: each person is drawn by the checkpoint its scenario's appearance names (human/ana, tagged
+    here), the others with the default look (the test-room mannequin), said in one warning line and recorded;
+    the front cameras see the mannequins (instance ids in the masks: the micro checkpoint is too faint to own a
+    pixel) and the checkpoint is called; --no-people draws nobody."""
+    from nsim.stages import render
+
+    store = world["store"]
+    store.set_ref("human/ana", world["human"])  # spot_run.json: humans[0].appearance is human/ana
+    cfg = from_dict(render.Config, {"tick_stride": 10, "max_frames": 2, "shard_frames": 2, "image_scale": 0.05,
+                                    "noise": False, "video": False, "sensors": list(FRONT),
+                                    "march": {"step_m": 0.05}})
+    with caplog.at_level("WARNING"):
+        ref = render.run(render.Inputs(trajectory=world["ahead"], scene=world["scene"], rig=SPOT), cfg,
+                         world["ctx"]).render
+    art = store.get(ref)
+    n = len(art.manifest["summary"]["people_checkpoints"])
+    assert n >= 2
+    assert art.manifest["summary"]["people_checkpoints"] == [world["human"]] + ["default look"] * (n - 1)
+    assert art.manifest["summary"]["people_from"] == "scenario"
+    assert art.manifest["inputs"]["human0"] == world["human"]
+    assert f"{n - 1} of {n} people drawn with the default look" in caplog.text
+    assert "humans[1] 'human/ben' (not in this workspace)" in caplog.text
+    masks = [v for k, v in decoded(store, ref).items() if "/mask/" in k]
+    seen = set(np.unique(np.concatenate([m.ravel() for m in masks]))) - {0}
+    assert seen and seen <= {2, 3, 4, 5}, seen  # people drawn with the default look (instance id k + 1)
+    assert human_calls["n"] > 0  # person 0 by its checkpoint
+    nobody = store.get(render.run(render.Inputs(trajectory=world["ahead"], scene=world["scene"], rig=SPOT,
+                                                people=False), cfg, world["ctx"]).render)
+    assert nobody.id != ref and nobody.manifest["summary"]["people_from"] == "none"
+    assert not any(v.any() for k, v in decoded(store, nobody.id).items() if "/mask/" in k)

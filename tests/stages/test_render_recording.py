@@ -490,7 +490,8 @@ def test_people_render_where_the_oracle_sees_them(people):
 
 
 @pytest.mark.parametrize("case, args, fragments", [
-    ("run without people", ["--trajectory", "trajectory/crossing"], ["only supplies the people", "pass --humans"]),
+    ("people and no people", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--no-people"],
+     ["--no-people draws nobody", "give one"]),
     ("no overlap", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--set", "people_time_offset_s=-5"],
      ["spans simulation time [0, 1] s", "no frame overlaps the run"]),
     ("a rig", ["--trajectory", "trajectory/crossing", "--humans", "human/t", "--rig", "nsim/configs/robots/spot.yaml"],
