@@ -208,35 +208,62 @@ def infer_unit_m(skeleton: Skeleton) -> tuple[float, str] | None:
     return scale, f"{scale:.4g} m per unit: no named unit fits; the nsim body's leg length over this one's ({leg:.4g} units)"
 
 
-def _pick_unit(skeleton: Skeleton, path: str, unit: str | float) -> float:
-    """Metres per file unit: ``unit`` as given, or ``infer_unit_m`` of the rest ``skeleton`` (file units, z up)."""
+def _pick_unit(skeleton: Skeleton, path: str, unit: str | float) -> tuple[float, str | None]:
+    """Metres per file unit, and how ``unit="auto"`` found it (None when ``unit`` gives it): ``unit`` as given,
+    or ``infer_unit_m`` of the rest ``skeleton`` (file units, z up)."""
     if not isinstance(unit, str):
         scale = float(unit)
         if not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"unit: expected a name ({', '.join(UNITS_M)}, auto) or metres per unit > 0, got {unit!r}")
-        return scale
+        return scale, None
     if unit != "auto":
         if unit not in UNITS_M:
             raise ValueError(f"unit: expected one of {', '.join(UNITS_M)}, auto; got {unit!r}")
-        return UNITS_M[unit]
+        return UNITS_M[unit], None
     found = infer_unit_m(skeleton)
     if found is None:
         names = ", ".join(repr(u) for u in UNITS_M)
         raise InputError(f"{path}: cannot tell the length unit: the rest skeleton is {skeleton.height_m():.4g} file units "
                          f"tall with legs of {skeleton.leg_length_m():.4g}, not a standing body's proportions; "
                          f"give it explicitly (unit={names} or metres per unit)")
-    scale, how = found
-    if how.startswith("unit "):
-        log.debug("%s: %s", path, how)
+    return found
+
+
+@dataclass(frozen=True)
+class BvhFile:
+    """A BVH file read (``load_bvh``): its clip and the length unit it was read in.
+
+    clip: on the file's own skeleton (metres, nsim axes); unit_m: metres per file unit;
+    unit_found: how ``unit="auto"`` measured it from the rest skeleton (``infer_unit_m``), None when
+    the caller gave the unit.
+    """
+
+    clip: MotionClip
+    unit_m: float
+    unit_found: str | None
+
+
+def _log_unit(path: str, found: BvhFile) -> None:
+    """The unit ``auto`` took: a debug line for a metric one (the skeleton's height decides), else an info line."""
+    if found.unit_found is None:
+        return
+    if found.unit_found.startswith("unit ") and found.unit_found.split()[1] in METRIC_UNITS:
+        log.debug("%s: %s", path, found.unit_found)
     else:
-        log.info("%s: %s", path, how)
-    return scale
+        log.info("%s: %s", path, found.unit_found)
 
 
 def parse_bvh(text: str, path: str | os.PathLike[str] = "<bvh>", unit: str | float = "auto",
               axes: str = "y_up") -> MotionClip:
-    """Parse BVH text (see the module docstring). ``path`` names the source in error messages."""
-    path = str(path)
+    """Parse BVH text (see the module docstring). ``path`` names the source in error messages.
+
+    The unit ``auto`` takes is logged (``load_bvh`` returns it instead)."""
+    found = _parse_bvh(text, str(path), unit, axes)
+    _log_unit(str(path), found)
+    return found.clip
+
+
+def _parse_bvh(text: str, path: str, unit: str | float, axes: str) -> BvhFile:
     A = _axes_matrix(axes)
     lines = text.splitlines()
     motion_idx = next((i for i, ln in enumerate(lines) if ln.split()[:1] == ["MOTION"]), None)
@@ -306,7 +333,7 @@ def parse_bvh(text: str, path: str | os.PathLike[str] = "<bvh>", unit: str | flo
     offsets = np.array([j.offset for j in joints])
     ends = np.array([j.end_site if j.end_site is not None else np.full(3, np.nan) for j in joints])
     file_skeleton = Skeleton(tuple(j.name for j in joints), parents, offsets @ A.T, ends @ A.T)
-    scale = _pick_unit(file_skeleton, path, unit)
+    scale, unit_found = _pick_unit(file_skeleton, path, unit)
 
     # channels -> root positions and local rotations (file axes)
     F, J = n_frames, len(joints)
@@ -336,8 +363,9 @@ def parse_bvh(text: str, path: str | os.PathLike[str] = "<bvh>", unit: str | flo
     # to nsim axes and metres
     skeleton = file_skeleton.scaled(scale)
     R_nsim = A @ R_local @ A.T
-    return MotionClip(skeleton, 1.0 / frame_time, (root_pos @ A.T) * scale, quats_from_matrices(R_nsim),
+    clip = MotionClip(skeleton, 1.0 / frame_time, (root_pos @ A.T) * scale, quats_from_matrices(R_nsim),
                       name=path, loop=False)
+    return BvhFile(clip, scale, unit_found)
 
 
 def _is_float(tok: str) -> bool:
@@ -348,8 +376,10 @@ def _is_float(tok: str) -> bool:
     return True
 
 
-def read_bvh(path: str | os.PathLike[str], unit: str | float = "auto", axes: str = "y_up") -> MotionClip:
-    """Read a BVH file into a ``MotionClip`` on the file's skeleton (metres, nsim axes)."""
+def load_bvh(path: str | os.PathLike[str], unit: str | float = "auto", axes: str = "y_up") -> BvhFile:
+    """Read a BVH file: its clip on the file's skeleton (metres, nsim axes) and the unit it was read in.
+
+    Nothing is logged: a caller that let ``unit="auto"`` measure the unit says so (``BvhFile.unit_found``)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8", errors="strict")
@@ -357,7 +387,15 @@ def read_bvh(path: str | os.PathLike[str], unit: str | float = "auto", axes: str
         raise InputError(f"{path}: BVH file not found") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read BVH file ({exc.__class__.__name__})") from None
-    return parse_bvh(text, path, unit=unit, axes=axes)
+    return _parse_bvh(text, str(path), unit, axes)
+
+
+def read_bvh(path: str | os.PathLike[str], unit: str | float = "auto", axes: str = "y_up") -> MotionClip:
+    """Read a BVH file into a ``MotionClip`` on the file's skeleton (metres, nsim axes); the unit ``auto``
+    takes is logged."""
+    found = load_bvh(path, unit, axes)
+    _log_unit(str(path), found)
+    return found.clip
 
 
 def _fmt(values, decimals: int = 6) -> str:

@@ -140,7 +140,7 @@ def test_rest_alignment_turns_bones_exactly():
 
 
 def test_joint_map_files_and_errors(tmp_path):
-    assert {name for name, _ in default_joint_map().profiles} == {"nsim", "cmu", "mixamo"}
+    assert {name for name, _ in default_joint_map().profiles} == {"nsim", "cmu", "mixamo", "biped", "daz"}
     good = tmp_path / "map.yaml"
     good.write_text("pelvis: [root, Hips]\nleft_knee: LKnee\n")
     jm = load_joint_map(good)
