@@ -72,6 +72,8 @@ def crowd_state(sc: Scenario) -> CrowdState:
         height_m=per("height_m"),
         group_id=per("group_id", np.int64),
         behaviour=behaviour_codes([h.behaviour for h in sc.humans]),
+        gait_stride_m=per("gait_stride_m"),
+        gait_period_s=per("gait_period_s"),
     )
 
 

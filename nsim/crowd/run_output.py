@@ -6,7 +6,8 @@ and a sweep's summary table.
 content; ``sweep_table_markdown(rows)``: the sweep's table, every metric of every cell;
 ``controller_table_markdown(rows)``: the controllers side by side (means over their cells).
 
-``write_trajectory(out_dir, sc, sim, metrics, cfg)``: ``trajectory.npz`` (byte-identical across runs),
+``write_trajectory(out_dir, sc, sim, metrics, cfg)``: ``trajectory.npz`` (byte-identical across runs; with the
+people's recorded clips, ``nsim.human.person_motion.person_clip_arrays``),
 TUM files of the robot and each human, ``scenario.json``, ``occupancy.json``, ``metrics.json``,
 ``topdown.png`` and, when ``cfg.video``, ``run.mp4`` (``cfg``: the stage's config, read for
 ``video``, ``video_fps`` and the like). ``sc``: the scenario; ``sim``: ``nsim.crowd.scenario.simulate``'s run.
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from nsim.crowd.behaviours import BEHAVIOUR_NAMES
+from nsim.human.person_motion import person_clip_arrays
 from nsim.io.npz import save_npz_deterministic
 
 # behaviour -> BGR colour for the video, and the matching matplotlib colour
@@ -176,6 +178,8 @@ def write_trajectory(out_dir: Path, sc, sim, metrics: dict[str, Any], cfg) -> No
             "motion": np.array([h.motion for h in sc.humans], dtype=str).reshape(-1),
             "appearance": np.array([h.appearance or "" for h in sc.humans], dtype=str).reshape(-1),
             "behaviour_names": np.array(BEHAVIOUR_NAMES, dtype=str),
+            # recorded clips (BVH files, checkpoints' motions), so render draws them without the scenario's files
+            **person_clip_arrays([None if h.clip is None else (h.clip_id, h.clip) for h in sc.humans]),
         }
     )
     if sim.robot_command_body is not None:

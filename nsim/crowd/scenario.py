@@ -53,8 +53,15 @@ Robot (body frame: x forward, y left, z up; ``RobotSpec``)
     rig's named sensors at ``rate_hz``; its rig is stored resolved (``nsim.crowd.sensors``).
 Humans (``HumanSpec``)
     Start, waypoints walked in straight lines (``loop``: a waypoint loop, else a goal list ending at
-    the last), behaviour, walking-group id, body height and radius, desired speed, motion clip name
-    and appearance (a human-checkpoint ref for the renderer; only checked as a name here).
+    the last), behaviour, walking-group id, body height and radius, desired speed, motion and
+    appearance (a human-checkpoint ref for the renderer; only checked as a name here). The motion
+    (``nsim.human.person_motion``) is one of nsim's clips by name, a BVH file ``{bvh: FILE, unit, axes,
+    joint_map}`` or a human checkpoint's fitted motion ``{from: REF}``; the simulate stage reads the last
+    two (``nsim.crowd.motion_source``) and stores the clip itself in the scenario (``motion_clips``,
+    named by its SHA-256; the person's motion becomes ``{clip: SHA256, source}``, see
+    :func:`with_motion_clips`), so the canonical scenario does not depend on where the file was. The
+    desired speed left out is the motion's own (``person_motion.person_gait``: walk 1.3 m/s, idle 0, a
+    recorded clip its travel speed).
 
 Time: ``duration_s``, and ``dt_s`` (null: the simulate config's). Randomness: ``seed`` (combined with
 the run's ``--seed`` by the simulate stage).
@@ -82,6 +89,9 @@ from nsim.crowd.schema import SchemaValidator, SchemaViolation, describe, format
 from nsim.crowd.sensors import SensorsSpec
 from nsim.errors import InputError, NsimError
 from nsim.geometry.transforms import interpolate_poses
+from nsim.human.motion import MotionClip
+from nsim.human.person_motion import clip_data, clip_digest, clip_from_data, person_gait
+from nsim.human.skeleton import REFERENCE_HEIGHT_M
 
 log = logging.getLogger(__name__)
 
@@ -181,6 +191,14 @@ class HumanSpec:
     speed_mps: float
     motion: str
     appearance: str | None
+    clip: MotionClip | None = None
+    """The recorded clip (on the reference body) of a ``{clip: SHA256}`` motion, else None (``motion``: nsim's clip)."""
+    clip_id: str | None = None
+    """The recorded clip's SHA-256 (its entry in the scenario's ``motion_clips``)."""
+    gait_stride_m: float = 0.0
+    """The crowd's gait phase: the clip's own stride at this height, or 0 (``nsim.human.person_motion.Gait``)."""
+    gait_period_s: float = 0.0
+    """The crowd's gait phase by time for a clip that does not travel (> 0), else 0."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -367,15 +385,31 @@ def parse_scenario(data: Any, *, source: str, base_dir: Path | None = None) -> S
     try:
         d = scenario_validator().validate(data)
     except SchemaViolation as exc:
-        raise scenario_error(source, exc.path, exc.message) from None
+        raise scenario_error(source, exc.path, _motion_message(exc, data)) from None
     d.pop("$schema", None)
     spec = ScenarioSpec(source, d, base_dir)
     _inline_tum(spec, d)
     _check_controller(spec, d)
     _check_sensors(spec, d)
     _check_humans(spec, d)
+    _check_motions(spec, d)
     _check_poses(spec, d)
     return spec
+
+
+def _motion_message(exc: SchemaViolation, data: Any) -> str:
+    """The schema's message, or for a ``humans[k].motion`` that none of its forms fits, one naming the clips
+    and the other forms (the schema's generic one-of message would list keys only)."""
+    path = exc.path
+    if not (len(path) == 3 and path[0] == "humans" and path[2] == "motion"
+            and exc.message.startswith(("expected an object with exactly one of", "matches more than one"))):
+        return exc.message
+    value = data["humans"][path[1]]["motion"]
+    names = ", ".join(scenario_validator().schema["$defs"]["motion"]["oneOf"][0]["enum"])
+    forms = "a BVH file {bvh: FILE} or a human checkpoint's motion {from: REF}"
+    if isinstance(value, str):
+        return f"{describe(value)} is not one of {names} (nor {forms})"
+    return f"expected one of {names}, {forms}; got {describe(value)}"
 
 
 def _inline_tum(spec: ScenarioSpec, d: dict) -> None:
@@ -483,6 +517,58 @@ def _check_humans(spec: ScenarioSpec, d: dict) -> None:
     for g, count in sorted(groups.items()):
         if count == 1:
             log.warning("group_id %d has a single member: group forces do nothing for it", g)
+
+
+def _check_motions(spec: ScenarioSpec, d: dict) -> None:
+    """Recorded clips (``motion_clips``): each one's SHA-256 checked, only those a human names kept (in the order
+    of their first use); every human's ``speed_mps`` left out filled in with its motion's own, except for a
+    motion the simulate stage has yet to read (``nsim.crowd.motion_source``). In place."""
+    table: dict[str, dict] = {}
+    for j, entry in enumerate(d.get("motion_clips", [])):
+        body = {key: entry[key] for key in ("fps", "root_positions_m", "local_rotations_wxyz")}
+        if clip_digest(body) != entry["sha256"]:
+            raise spec.error(("motion_clips", j, "sha256"), "does not match the clip's content")
+        try:
+            clip_from_data(body)
+        except ValueError as exc:
+            raise spec.error(("motion_clips", j), str(exc)) from None
+        table[entry["sha256"]] = entry
+    used: list[str] = []
+    for k, h in enumerate(d["humans"]):
+        motion = h["motion"]
+        if isinstance(motion, dict) and "clip" in motion:
+            if motion["clip"] not in table:
+                raise spec.error(("humans", k, "motion", "clip"), f"{motion['clip'][:12]}... is not in motion_clips")
+            used.append(motion["clip"])
+    d.pop("motion_clips", None)
+    if used:
+        d["motion_clips"] = [table[sha] for sha in dict.fromkeys(used)]
+    for h in d["humans"]:
+        motion = h["motion"]
+        if "speed_mps" in h or (isinstance(motion, dict) and "clip" not in motion):
+            continue
+        clip = None if isinstance(motion, str) else clip_from_data(table[motion["clip"]])
+        h["speed_mps"] = round(person_gait(motion if isinstance(motion, str) else "", clip,
+                                           REFERENCE_HEIGHT_M).speed_mps, 6)
+
+
+def with_motion_clips(spec: ScenarioSpec, clips: Mapping[int, tuple[MotionClip, str]]) -> ScenarioSpec:
+    """``spec`` with the motions of humans ``k`` replaced by recorded clips: ``clips[k] = (clip on the reference
+    body, source)``, ``source`` saying where it came from (kept in the scenario, with no path in it). The clip goes
+    to ``motion_clips`` in its plain form (``nsim.human.person_motion.clip_data``), the human's motion becomes
+    ``{clip: SHA256, source}``; a speed left out is the clip's."""
+    d = copy.deepcopy(dict(spec.data))
+    table = list(d.get("motion_clips", []))
+    for k, (clip, source) in clips.items():
+        body = clip_data(clip)
+        sha = clip_digest(body)
+        if sha not in {entry["sha256"] for entry in table}:
+            table.append({"sha256": sha, **body})
+        d["humans"][k]["motion"] = {"clip": sha, "source": source}
+    d["motion_clips"] = table
+    out = dataclasses.replace(spec, data=d)
+    _check_motions(out, d)
+    return out
 
 
 def _check_poses(spec: ScenarioSpec, d: dict) -> None:
@@ -626,13 +712,34 @@ def resolve_scenario(spec: ScenarioSpec, scene_map: SceneMap) -> Scenario:
         seed=int(d["seed"]),
         scene_map=scene_map,
         robot=_robot_spec(d),
-        humans=tuple(_human_spec(h) for h in d["humans"]),
+        humans=_human_specs(spec, d),
     )
     _check_free_space(sc, spec.error)
     return sc
 
 
-def _human_spec(h: dict) -> HumanSpec:
+def _human_specs(spec: ScenarioSpec, d: dict) -> tuple[HumanSpec, ...]:
+    """The humans of the resolved content ``d``; a motion not yet read (a BVH file, a human checkpoint) is refused."""
+    clips = {entry["sha256"]: clip_from_data(entry, name=f"clip {entry['sha256'][:12]}")
+             for entry in d.get("motion_clips", [])}
+    gaits: dict[tuple[str, float], Any] = {}  # (motion, height) -> Gait: one per clip and body
+    out = []
+    for k, h in enumerate(d["humans"]):
+        motion = h["motion"]
+        if isinstance(motion, dict) and "clip" not in motion:
+            what = "a BVH file" if "bvh" in motion else "a human checkpoint's motion"
+            raise spec.error(("humans", k, "motion"), f"{what} is read by the simulate stage "
+                             "(nsim.stages.simulate.load_scenario), which needs the scenario file and its workspace")
+        name = motion if isinstance(motion, str) else f"clip {motion['clip'][:12]}"
+        clip = clips[motion["clip"]] if isinstance(motion, dict) else None
+        key = (name, float(h["height_m"]))
+        if key not in gaits:
+            gaits[key] = person_gait(name, clip, float(h["height_m"]))
+        out.append(_human_spec(h, name, clip, gaits[key]))
+    return tuple(out)
+
+
+def _human_spec(h: dict, motion: str, clip: MotionClip | None, gait) -> HumanSpec:
     return HumanSpec(
         id=h["id"],
         start_m=np.array(h["start_m"], dtype=np.float64),
@@ -643,8 +750,12 @@ def _human_spec(h: dict) -> HumanSpec:
         height_m=float(h["height_m"]),
         radius_m=float(h["radius_m"]),
         speed_mps=float(h["speed_mps"]),
-        motion=h["motion"],
+        motion=motion,
         appearance=h["appearance"],
+        clip=clip,
+        clip_id=None if clip is None else h["motion"]["clip"],
+        gait_stride_m=gait.stride_m,
+        gait_period_s=gait.period_s,
     )
 
 

@@ -50,7 +50,7 @@ from nsim.crowd import behaviours as beh
 from nsim.crowd.behaviours import Behaviour, BehaviourParams, Reaction, RobotView
 from nsim.crowd.neighbours import SegmentGrid, closest_points_on_segments, neighbour_pairs
 from nsim.crowd.state import RobotState
-from nsim.human.gait_phase import advance_gait_phase, stride_length_m
+from nsim.human.gait_phase import advance_person_phase
 
 STAND_TOLERANCE_M = 0.05
 """Humans stop this close to a final goal (exactly 0 desired speed within it: no creeping)."""
@@ -113,14 +113,17 @@ class CrowdState:
             stops at its last waypoint and ``arrived`` becomes True.
         arrived: (N,) bool.
     Body
-        desired_speed_mps: (N,) float64, v0. radius_m: (N,) float64, body radius.
+        desired_speed_mps: (N,) float64, v0 (0: stands, e.g. an idle clip's person). radius_m: (N,) float64, body radius.
         height_m: (N,) float64, scales the stride length. group_id: (N,) int64, -1 = walks alone.
     Behaviour (``nsim.crowd.behaviours``)
         behaviour: (N,) int8 ``Behaviour`` codes. behaviour_state: (N,) int8 (0 navigating,
         1 reacting, 2 done). behaviour_timer_s: (N,) float64, the reaction clock: time spent
         reacting over the run (profile hunavsim) or time in the current state (nsim).
-    Gait (``nsim.human.gait_phase``)
-        distance_walked_m: (N,) float64. gait_phase: (N,) float64 in [0, 1).
+    Gait (``nsim.human.gait_phase.advance_person_phase``)
+        distance_walked_m: (N,) float64. gait_phase: (N,) float64 in [0, 1). gait_stride_m: (N,) float64,
+        the person's clip's own stride (> 0), or 0: the stride formula of nsim's procedural walks.
+        gait_period_s: (N,) float64, > 0 for a clip that does not travel (the phase advances with
+        time over it), else 0.
     """
 
     time_s: float
@@ -141,6 +144,8 @@ class CrowdState:
     behaviour_timer_s: np.ndarray
     distance_walked_m: np.ndarray
     gait_phase: np.ndarray
+    gait_stride_m: np.ndarray
+    gait_period_s: np.ndarray
 
     @property
     def n(self) -> int:
@@ -160,6 +165,8 @@ class CrowdState:
         height_m=1.75,
         group_id=-1,
         behaviour=Behaviour.REGULAR,
+        gait_stride_m=0.0,
+        gait_period_s=0.0,
     ) -> CrowdState:
         """A validated initial state; scalars broadcast to every human.
 
@@ -208,10 +215,15 @@ class CrowdState:
             behaviour_timer_s=np.zeros(n),
             distance_walked_m=np.zeros(n),
             gait_phase=np.zeros(n),
+            gait_stride_m=_per_agent("gait_stride_m", gait_stride_m, n, np.float64),
+            gait_period_s=_per_agent("gait_period_s", gait_period_s, n, np.float64),
         )
-        for name in ("desired_speed_mps", "radius_m", "height_m"):
+        for name in ("radius_m", "height_m"):
             if np.any(getattr(state, name) <= 0):
                 raise ValueError(f"{name}: expected values > 0")
+        for name in ("desired_speed_mps", "gait_stride_m", "gait_period_s"):
+            if np.any(getattr(state, name) < 0):
+                raise ValueError(f"{name}: expected values >= 0")
         for f in fields(state):
             v = getattr(state, f.name)
             if isinstance(v, np.ndarray) and v.dtype.kind == "f" and not np.all(np.isfinite(v)):
@@ -810,8 +822,7 @@ def step(
     goal_index = np.where(reached & last & state.loop_goals, 0, goal_index)
     arrived = state.arrived | (reached & last & ~state.loop_goals)
 
-    # --- gait: phase advances with the distance walked
-    stride = stride_length_m(new_speed, state.height_m)
+    # --- gait: phase advances with the distance walked over the clip's stride (or with time: idle)
     return replace(
         state,
         time_s=state.time_s + dt_s,
@@ -823,7 +834,8 @@ def step(
         behaviour_state=b_state,
         behaviour_timer_s=b_timer,
         distance_walked_m=state.distance_walked_m + walked,
-        gait_phase=advance_gait_phase(state.gait_phase, walked, stride),
+        gait_phase=advance_person_phase(state.gait_phase, walked, dt_s, new_speed, state.height_m,
+                                        state.gait_stride_m, state.gait_period_s),
     )
 
 

@@ -51,6 +51,10 @@ DEFAULT_CLIPS: dict[str, float | None] = {"walk_slow": 0.8, "walk": 1.3, "walk_f
 
 DEFAULT_FPS = 30.0
 
+IDLE_PERIOD_S = 4.0
+"""One cycle of the standing idle (``idle_cycle``), whatever the body's height: the crowd advances an
+idle person's gait phase by time over this (``nsim.human.person_motion``)."""
+
 
 def duty_factor(speed_mps: float) -> float:
     """Fraction of the gait cycle a foot is on the ground: ``0.66 - 0.035 v``, clipped to [0.55, 0.65]."""
@@ -276,7 +280,7 @@ def walk_cycle(speed_mps: float = 1.3, height_m: float = skeleton.REFERENCE_HEIG
     return MotionClip(sk, n / period, pelvis, skeleton.quats_from_matrices(L), name=f"walk {v:g} m/s", loop=True)
 
 
-def idle_cycle(height_m: float = skeleton.REFERENCE_HEIGHT_M, period_s: float = 4.0, fps: float = DEFAULT_FPS) -> MotionClip:
+def idle_cycle(height_m: float = skeleton.REFERENCE_HEIGHT_M, period_s: float = IDLE_PERIOD_S, fps: float = DEFAULT_FPS) -> MotionClip:
     """Standing idle of ``nsim_skeleton(height_m)``: breathing, a slow weight shift and head motion.
 
     Feet stay planted (legs solved by IK); ``N + 1`` frames over ``period_s``, the last closing the loop.

@@ -6,7 +6,8 @@ and optionally ``motion (P,)`` and ``appearance (P,)``) and the human checkpoint
 (``person_checkpoints``: the one a person's scenario entry names, else checkpoint k mod M). Per frame:
 
 1. ``joint_transforms`` / ``joint_transforms_at``: each person still in the run posed by its gait
-   loop (``nsim.human.motion.LocomotionLoop``) and skeleton, at a tick or between ticks;
+   loop (``nsim.human.person_motion.person_loop``: nsim's clip its ``motion`` names, or the recorded clip
+   the run's arrays hold for it, ``person_clips``) and skeleton, at a tick or between ticks;
 2. ``visible``: the paper's Algorithm 1, corrected (``nsim.rendering.culling``): the people whose
    posed box the sensor's rays can see, with the rays to cast their samples on (``PersonView``);
 3. ``composite`` (settings: ``CompositeConfig``): the scene's samples and every visible person's merged in
@@ -119,7 +120,8 @@ class HumanSet:
         self.arrays = arrays
         self.device = device
         self.person_model = None if person_model is None else [int(m) for m in person_model]
-        self._loops: dict[tuple[str, float], Any] = {}
+        self._loops: dict[tuple[str, int, float], Any] = {}
+        self._clips: list | None = None  # per person: its recorded clip or None (read from the arrays once)
 
     @classmethod
     def load(cls, human_dirs: Sequence[str | Path], trajectory_file: str | Path | None, device,
@@ -137,16 +139,23 @@ class HumanSet:
         """The checkpoint (index into the render's human checkpoints) that draws person ``k``."""
         return self.person_model[k] if self.person_model is not None else default_checkpoint(k, len(self.models))
 
-    def _loop(self, motion: str, height: float):
-        from nsim.human.gait import DEFAULT_CLIPS, default_clip
-        from nsim.human.motion import LocomotionLoop
+    def _loop(self, k: int, height: float):
+        """The gait loop that poses person ``k`` (``height`` m tall): its recorded clip from the run's arrays, else
+        nsim's clip its ``motion`` names (a name this nsim does not draw: the walk, with a warning)."""
+        from nsim.human.gait import DEFAULT_CLIPS
+        from nsim.human.person_motion import person_clips, person_loop
 
-        key = (motion, round(height, 3))
+        a = self.arrays
+        if self._clips is None:
+            self._clips = person_clips(a, int(np.asarray(a["height_m"]).shape[0]))
+        clip = self._clips[k]
+        motion = str(a["motion"][k]) if "motion" in a else "walk"
+        key = (motion, -1 if clip is None else int(a["motion_clip"][k]), round(height, 3))
         if key not in self._loops:
-            name = motion if motion in DEFAULT_CLIPS else "walk"
+            name = motion if clip is not None or motion in DEFAULT_CLIPS else "walk"
             if name != motion:  # a run simulated before scenarios refused unknown motions
                 log.warning("people: motion %r is not one of %s; drawn with the walk", motion, ", ".join(DEFAULT_CLIPS))
-            self._loops[key] = LocomotionLoop.from_clip(default_clip(name, height))
+            self._loops[key] = person_loop(name, clip, height)
         return self._loops[key]
 
     def joint_transforms(self, tick: int) -> list[tuple[int, np.ndarray]]:
@@ -176,9 +185,7 @@ class HumanSet:
             pos = position_m[k]
             if not np.isfinite(pos).all():
                 continue
-            height = float(a["height_m"][k])
-            motion = str(a["motion"][k]) if "motion" in a else "walk"
-            loop = self._loop(motion, height)
+            loop = self._loop(k, float(a["height_m"][k]))
             root, quats = loop.pose_at(np.array([gait_phase[k]]), pos[None], np.array([heading_rad[k]]))
             T = forward_kinematics(loop.skeleton, quats[0], root[0])
             out.append((k, T))

@@ -29,8 +29,8 @@ Artifact layout (``T`` ticks at ``t_k = k dt_s``, ``N`` humans)::
 ``velocity_mps (T, N, 2)``, ``heading_rad (T, N)``, ``behaviour_state (T, N)`` int8 (0 navigating,
 1 reacting, 2 done), ``gait_phase (T, N)`` in [0, 1), ``goal_index (T, N)``, ``radius_m (N,)``,
 ``behaviour (N,)`` int8 codes, ``group_id (N,)``, the robot as the crowd saw it) plus
-``robot_pose_se3 (T, 4, 4)``, ``human_ids (N,)``, ``height_m (N,)``, ``motion (N,)``,
-``appearance (N,)`` (``""`` = default look) and ``behaviour_names (6,)`` (code k at index k - 1).
+``robot_pose_se3 (T, 4, 4)``, ``human_ids (N,)``, ``height_m (N,)``, ``motion (N,)``, ``appearance (N,)`` (``""``:
+default look), ``behaviour_names (6,)`` (code k at index k - 1), recorded clips (``person_motion.person_clip_arrays``).
 When a controller drives the robot (the scenario's ``robot.controller``, ``nsim.crowd.controllers``)
 it also holds ``robot_command_body (T - 1, 3)``, the command issued at tick k as the controller
 returned it, and ``robot_executed_body (T - 1, 3)``, the motion from tick k to k + 1 (clamped to the
@@ -52,6 +52,7 @@ from nsim.config import from_dict, param, to_dict
 from nsim.context import RunContext
 from nsim.crowd.behaviours import BehaviourParams
 from nsim.crowd.driver import simulate, spawn_extra_humans
+from nsim.crowd.motion_source import resolve_motions
 from nsim.crowd.recorded_path import resolve_trajectory
 from nsim.crowd.run_output import SUMMARY_METRICS, run_metrics, write_trajectory
 from nsim.crowd.scenario import (
@@ -70,9 +71,10 @@ from nsim.crowd.social_force import ForceParams
 from nsim.crowd.sweep import SweepSpec
 from nsim.errors import NsimError
 from nsim.stages.runner import cached, device_kind, rerun
+from nsim.train.human_data_video import PERSON_BVH_FILE
 
 STAGE = "simulate"
-VERSION = 4  # 2: run.mp4 in H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded (nsim.io.canonical)
+VERSION = 5  # 2: H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded; 5: gait phase by each clip
 
 @dataclasses.dataclass(frozen=True)
 class Config:
@@ -137,9 +139,10 @@ def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
 
 
 def load_scenario(path: str | Path, store=None, robot_trajectory: str | None = None) -> Scenario:
-    """Read, validate and resolve a scenario file (``store``: the workspace, for a scene checkpoint, a recording or
-    a registration; ``robot_trajectory``: ``--robot-trajectory``, see :func:`resolve_trajectory`)."""
-    spec = resolve_trajectory(read_scenario(path), store, robot_trajectory)
+    """Read, validate and resolve a scenario file (``store``: the workspace, for a scene checkpoint, a recording,
+    a registration or a human checkpoint's motion; ``robot_trajectory``: ``--robot-trajectory``, see
+    :func:`resolve_trajectory`; the people's BVH files and checkpoints' motions: :func:`resolve_motions`)."""
+    spec = resolve_motions(resolve_trajectory(read_scenario(path), store, robot_trajectory), store, PERSON_BVH_FILE)
     return resolve_scenario(spec, resolve_scene(spec, store))
 
 

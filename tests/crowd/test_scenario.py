@@ -626,5 +626,8 @@ def test_the_schema_s_motions_are_the_clips_nsim_draws():
     from nsim.human.gait import DEFAULT_CLIPS
 
     schema = scenario_validator().schema
-    motion = schema["$defs"]["human"]["properties"]["motion"]
-    assert sorted(motion["enum"]) == sorted(DEFAULT_CLIPS) and motion["default"] in DEFAULT_CLIPS
+    assert schema["$defs"]["human"]["properties"]["motion"] == {"$ref": "#/$defs/motion"}
+    motion = schema["$defs"]["motion"]
+    names = motion["oneOf"][0]["enum"]  # the other forms are recorded clips: objects
+    assert sorted(names) == sorted(DEFAULT_CLIPS) and motion["default"] in DEFAULT_CLIPS
+    assert all(form["type"] == "object" for form in motion["oneOf"][1:])
