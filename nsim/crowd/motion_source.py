@@ -8,14 +8,16 @@ motion is its file ``person_bvh`` (the simulate stage passes the name ``train-hu
 writes to the workspace. A file that is missing or malformed, a checkpoint without ``person.bvh`` or a
 skeleton too few of whose joints map is one ``InputError`` line naming ``humans[k].motion`` and the file.
 
-A unit that ``auto`` measured is one log line with its number; a person whose scenario gives a speed other
-than its clip's own is named in one log line (the clip is played at that speed, its feet do not slide: the
+A unit that ``auto`` measured is one log line with its number; a clip that does not move steadily (a start
+and a stop: it plays as one cycle, ``person_motion.unsteadiness_m``) one warning; a person whose scenario gives
+a speed other than its clip's own is named in one log line (the clip is played at that speed, its feet do not slide: the
 crowd advances its phase by the clip's stride, ``nsim.human.gait_phase.advance_person_phase``).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import math
 from pathlib import Path
@@ -24,7 +26,7 @@ from typing import Any
 from nsim.crowd.scenario import ScenarioSpec, with_motion_clips
 from nsim.errors import InputError, NsimError
 from nsim.human.motion import MotionClip
-from nsim.human.person_motion import load_recorded_clip, person_gait
+from nsim.human.person_motion import STEADY_TOLERANCE_M, load_recorded_clip, person_gait, unsteadiness_m
 from nsim.human.skeleton import REFERENCE_HEIGHT_M
 
 log = logging.getLogger("nsim.stages.simulate")
@@ -37,12 +39,23 @@ def resolve_motions(spec: ScenarioSpec, store, person_bvh: str) -> ScenarioSpec:
     """``spec`` with every ``{bvh: ...}`` and ``{from: ...}`` motion read and stored as a clip (the module docstring);
     ``person_bvh``: a human checkpoint's file holding its fitted motion (``nsim.train.human_data_video.PERSON_BVH_FILE``)."""
     clips: dict[int, tuple[MotionClip, str]] = {}
+    read: dict[str, tuple[MotionClip, str]] = {}  # the same entry (file and settings, or checkpoint) read once
     for k, h in enumerate(spec.data["humans"]):
         motion = h["motion"]
-        if isinstance(motion, dict) and "bvh" in motion:
-            clips[k] = _bvh_clip(spec, k, motion)
-        elif isinstance(motion, dict) and "from" in motion:
-            clips[k] = _checkpoint_clip(spec, k, motion["from"], store, person_bvh)
+        if not (isinstance(motion, dict) and ("bvh" in motion or "from" in motion)):
+            continue
+        key = json.dumps(motion, sort_keys=True)
+        if key not in read:
+            read[key] = (_bvh_clip(spec, k, motion) if "bvh" in motion
+                         else _checkpoint_clip(spec, k, motion["from"], store, person_bvh))
+        clips[k] = read[key]
+    for clip, _ in read.values():
+        if (stray := unsteadiness_m(clip)) > STEADY_TOLERANCE_M:
+            who = ", ".join(f"humans[{k}]" for k, (c, _) in clips.items() if c is clip)
+            log.warning("%s: %s: the clip's root strays up to %.2f m from a steady walk along its travel (a start or "
+                        "a stop, a turn?); it plays as one cycle of %.2f s, %.2f m, so the body drifts about the "
+                        "person's position: cut the clip to a steady stretch", spec.source, who, stray,
+                        clip.duration_s, person_gait("", clip, REFERENCE_HEIGHT_M).stride_m)
     _log_other_speeds(spec, clips)
     return with_motion_clips(spec, clips) if clips else spec
 

@@ -157,6 +157,17 @@ def load_recorded_clip(path: str | os.PathLike[str], unit: str | float = "auto",
     return RecordedClip(clip, description, found.unit_m, found.unit_found)
 
 
+STEADY_TOLERANCE_M = 0.25
+"""A recorded clip whose root strays further than this from a steady walk along its travel is warned about:
+played as one cycle, its body drifts about the person's position (a start and a stop, a turn)."""
+
+
+def unsteadiness_m(clip: MotionClip) -> float:
+    """How far (m) the clip's root strays on the floor from moving at its mean velocity (its loop's
+    ``residual_root_m``): a few centimetres of sway for a steady walk, metres for a start-walk-stop."""
+    return float(np.linalg.norm(LocomotionLoop.from_clip(clip).residual_root_m[:, :2], axis=1).max())
+
+
 def clip_at_height(clip: MotionClip, height_m: float) -> MotionClip:
     """``clip`` (on the reference body) played by a person ``height_m`` tall (the module docstring's rule)."""
     s = float(height_m) / REFERENCE_HEIGHT_M

@@ -282,3 +282,21 @@ def test_a_checkpoint_without_a_fitted_motion_is_one_line(run_cli, tmp_path, mon
     assert f"humans[0].motion.from: human checkpoint {plain[:12]}" in line and "has no person.bvh" in line, line
     line = _cli_error(run_cli, tmp_path, monkeypatch, [_lane("p", 1.5, {"from": "human/nobody"})])
     assert "humans[0].motion.from: no artifact or ref named 'human/nobody'" in line, line
+
+
+def test_an_unsteady_clip_is_one_warning_for_everyone_it_drives(tmp_path, caplog):
+    """A clip that starts standing plays as one cycle, so the body drifts about the person: one warning line,
+    naming the people, for the file read once."""
+    walk = walk_cycle(1.0)
+    root = np.concatenate([np.repeat(walk.root_positions_m[:1], 30, 0), walk.root_positions_m])
+    quats = np.concatenate([np.repeat(walk.local_rotations_wxyz[:1], 30, 0), walk.local_rotations_wxyz])
+    folder = tmp_path / "u"
+    folder.mkdir()
+    write_bvh(folder / "start_walk.bvh", renamed(MotionClip(walk.skeleton, walk.fps, root, quats), "cmu"), unit="cmu")
+    motion = {"bvh": "start_walk.bvh", "unit": "cmu"}
+    path = _write_scenario(folder, [_lane("a", 1.5, motion), _lane("b", 3.5, motion)])
+    with caplog.at_level(logging.WARNING, logger="nsim"):
+        sc = load_scenario(path)
+    lines = [r.getMessage() for r in caplog.records if "strays up to" in r.getMessage()]
+    assert len(lines) == 1 and "humans[0], humans[1]: the clip's root strays up to" in lines[0], lines
+    assert sc.humans[0].clip_id == sc.humans[1].clip_id and len(sc.data["motion_clips"]) == 1
