@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from nsim.crowd.scenario import ScenarioSpec, with_motion_clips
-from nsim.errors import InputError, NsimError
+from nsim.errors import InputError
 from nsim.human.motion import MotionClip
 from nsim.human.person_motion import STEADY_TOLERANCE_M, load_recorded_clip, person_gait, unsteadiness_m
 from nsim.human.skeleton import REFERENCE_HEIGHT_M
@@ -92,12 +92,7 @@ def _bvh_clip(spec: ScenarioSpec, k: int, motion: dict[str, Any]) -> tuple[Motio
 def _checkpoint_clip(spec: ScenarioSpec, k: int, ref: str, store, person_bvh: str) -> tuple[MotionClip, str]:
     """A ``{from: REF}`` motion: the human checkpoint's ``person_bvh`` (nsim's own names and unit)."""
     where = ("humans", k, "motion", "from")
-    if store is None:
-        raise spec.error(where, "a human checkpoint's motion needs a workspace to resolve it")
-    try:
-        art_id = store.resolve(ref, kind="human-checkpoint")
-    except NsimError as exc:
-        raise spec.error(where, str(exc)) from None
+    art_id = spec.artifact(where, ref, "human-checkpoint", store, "a human checkpoint's motion")
     path = store.get(art_id).path / person_bvh
     if not path.is_file():
         raise spec.error(where, f"human checkpoint {art_id[:12]} ({ref}) has no {person_bvh}: only one "

@@ -356,6 +356,16 @@ class ScenarioSpec:
         """The one-line error naming this scenario and the field ``path``."""
         return scenario_error(self.source, path, message)
 
+    def artifact(self, path: Sequence[str | int], ref: str, kind: str, store, what: str) -> str:
+        """The id of the ``kind`` artifact ``ref`` a field names, in the workspace ``store``; errors name the field
+        (``what``: what needs the workspace, for the error when there is none)."""
+        if store is None:
+            raise self.error(path, f"{what} needs a workspace to resolve it")
+        try:
+            return store.resolve(ref, kind=kind)
+        except NsimError as exc:
+            raise self.error(path, str(exc)) from None
+
     def file(self, path: Sequence[str | int], name: str, what: str) -> Path:
         """The file ``name`` a field names, relative to the scenario file; errors name the field."""
         if self.base_dir is None:

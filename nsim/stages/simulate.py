@@ -69,7 +69,6 @@ from nsim.crowd.scenario import (
 from nsim.crowd.sensors import scene_sensors
 from nsim.crowd.social_force import ForceParams
 from nsim.crowd.sweep import SweepSpec
-from nsim.errors import NsimError
 from nsim.stages.runner import cached, device_kind, rerun
 from nsim.train.human_data_video import PERSON_BVH_FILE
 
@@ -123,12 +122,7 @@ def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
     if "nav2_map" in scene:
         return polygon_map(nav2_scene(spec), spec.error)
     where, ref = ("scene", "checkpoint"), scene["checkpoint"]
-    if store is None:
-        raise spec.error(where, "a scene checkpoint needs a workspace to resolve it")
-    try:
-        art_id = store.resolve(ref, kind="scene-checkpoint")
-    except NsimError as exc:
-        raise spec.error(where, str(exc)) from None
+    art_id = spec.artifact(where, ref, "scene-checkpoint", store, "a scene checkpoint")
     art = store.get(art_id).path
     occ = art / "occupancy.json"
     if not occ.is_file() and (art / "scene.json").is_file():
