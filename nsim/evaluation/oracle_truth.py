@@ -32,6 +32,7 @@ from nsim.evaluation.evaluate_config import Config
 from nsim.evaluation.inputs import EvaluationInputs
 from nsim.evaluation.renders import RenderData, as_captured, read_depth, read_rgb, require_mode, uint8_rgb
 from nsim.evaluation.truth import FramePair, GroundTruth, SensorFrames, SlamSequence, lidar_rows
+from nsim.rendering.default_look import DEFAULT_LOOK_NAME, DEFAULT_LOOK_SEED
 
 log = logging.getLogger(__name__)
 
@@ -138,9 +139,11 @@ class OracleTruth(GroundTruth):
         position, heading, gait phase and height through the same skeleton and gait loop) and dressed
         like the actor its human checkpoint was trained from (the render's choice: its summary's
         ``people_checkpoints``; k mod M for renders from before it was recorded); a checkpoint trained from a
-        data folder has no test-room actor: appearance seed k."""
-        if not r.humans:
+        data folder has no test-room actor: appearance seed k. A person drawn with the default look is that
+        actor exactly (``nsim.rendering.default_look``: appearance seed ``DEFAULT_LOOK_SEED``)."""
+        if not r.has_people:
             return None
+        drew = r.manifest.get("summary", {}).get("people_checkpoints")  # what the render chose (person_checkpoints)
         from nsim.io.npz import read_npz
         from nsim.rendering.people import HumanSet, default_checkpoint
         from nsim.synth.actor import Actor
@@ -151,11 +154,11 @@ class OracleTruth(GroundTruth):
             raise InputError(f"render {r.short}: has human checkpoints but no trajectory")
         arrays = read_npz(self.artifacts.get(traj).file("trajectory.npz"))
         people = HumanSet([], arrays, "cpu")
-        seeds = self.actor_seeds(r)
+        seeds = self.actor_seeds(r) + [DEFAULT_LOOK_SEED]  # the default look: the last entry
         humans = list(r.humans)
-        drew = r.manifest.get("summary", {}).get("people_checkpoints")  # what the render chose (person_checkpoints)
         n = int(np.asarray(arrays["height_m"]).shape[0])
-        chosen = [humans.index(h) for h in drew] if drew else [default_checkpoint(k, len(humans)) for k in range(n)]
+        chosen = ([len(humans) if h == DEFAULT_LOOK_NAME else humans.index(h) for h in drew] if drew
+                  else [default_checkpoint(k, len(humans)) for k in range(n)])
         bodies: dict[int, Any] = {}
 
         def at(tick: int) -> list:
@@ -180,7 +183,7 @@ class OracleTruth(GroundTruth):
 
         rel = f"{sensor}/mask/{index:06d}.png"
         if not (r.path / rel).is_file():
-            raise InputError(f"region=people: render {r.short} has no person mask {rel} (rendered without --humans)")
+            raise InputError(f"region=people: render {r.short} has no person mask {rel} (its run has none, or it was rendered with --no-people)")
         mask = np.asarray(read_instance_mask(r.path / rel)) > 0
         if view is not None:
             if view.instance_mask.shape != mask.shape:
@@ -237,8 +240,8 @@ class OracleTruth(GroundTruth):
                     if table == "detection" and not coco:
                         r.file(mask)
                     elif people and table != "detection" and not (r.path / mask).is_file():
-                        raise InputError(f"region=people: render {r.short} has no person mask {mask} (rendered "
-                                         "without --humans)")
+                        raise InputError(f"region=people: render {r.short} has no person mask {mask} (its run has "
+                                         "none, or it was rendered with --no-people)")
 
     # -- the interface
     def _require_trajectory(self) -> None:
@@ -375,11 +378,11 @@ class OracleTruth(GroundTruth):
             yield SlamSequence(r, s.name, seq, times, sim, real, truth)
 
     def detection_unavailable(self, coco: bool) -> tuple[RenderData, str, list[str]] | None:
-        no_people = [r for r in self.renders if not r.humans]
+        no_people = [r for r in self.renders if not r.has_people]
         if coco or not no_people:
             return None
         r = no_people[0]
-        reason = (f"render {r.short} has no people (rendered without --humans): the detection experiment compares "
+        reason = (f"render {r.short} has no people (its run has none, or it was rendered with --no-people): the detection experiment compares "
                   "person boxes on simulated and real frames")
         return r, reason, [s.name for s in self.cameras(r, "image")]
 
@@ -443,9 +446,11 @@ class OracleTruth(GroundTruth):
                     "(cameras/<camera>.json)"]
         if table == "detection":
             seeds = {h: seed for r in self.renders for h, seed in zip(r.humans, self.actor_seeds(r), strict=True)}
-            dressed = ", ".join(f"checkpoint {h[:12]}: actor seed {seed}" if seed is not None
-                                else f"checkpoint {h[:12]}: seed = person index (no test-room actor)"
-                                for h, seed in seeds.items())
+            dressed = [f"checkpoint {h[:12]}: actor seed {seed}" if seed is not None
+                       else f"checkpoint {h[:12]}: seed = person index (no test-room actor)" for h, seed in seeds.items()]
+            if any(DEFAULT_LOOK_NAME in r.manifest.get("summary", {}).get("people_checkpoints", ()) for r in self.renders):
+                dressed.append(f"the default look: actor seed {DEFAULT_LOOK_SEED}, exactly as rendered")
+            dressed = ", ".join(dressed)
             return ["real frames: the test room's oracle at the same camera poses with the simulated people as "
                     "test-room actors (nsim.synth.actor.Actor), posed like the render's (the run's positions, "
                     f"headings, gait phases and heights) and dressed like the actor each person's human checkpoint "

@@ -72,6 +72,11 @@ class RenderData:
         keys = [k for k in ids if k.startswith("human") and k[5:].isdigit()]
         return [ids[k] for k in sorted(keys, key=lambda k: int(k[5:]))]
 
+    @property
+    def has_people(self) -> bool:
+        """Whether the render drew people (by human checkpoints or with the default look; ``people_checkpoints``)."""
+        return bool(self.humans) or bool(self.manifest.get("summary", {}).get("people_checkpoints"))
+
     def file(self, rel: str) -> Path:
         p = self.path / rel
         if not p.is_file():

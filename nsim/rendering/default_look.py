@@ -26,6 +26,8 @@ DEFAULT_LOOK = -1
 """A person's checkpoint index meaning "the default look" (``ShardJob.person_model``)."""
 DEFAULT_LOOK_SEED = 0
 """The mannequin's appearance seed (``nsim.synth.actor.Actor``): its clothes, skin, hair and print."""
+DEFAULT_LOOK_NAME = "default look"
+"""How ``render.json``'s ``people_checkpoints`` names it."""
 SHELL_M = 0.002
 """Thickness of the opaque sample each ray gets at the mannequin's surface."""
 SHELL_OPTICAL_DEPTH = 30.0

@@ -435,11 +435,11 @@ def people_summary(humans: Sequence[str], people: Sequence[int] | None, defaulte
     """What ``render.json``'s summary says of a trajectory's people: who drew each (``run_people``) and from where
     (``people_from``: ``humans``, the render's ``--humans``; ``scenario``, its appearances and the default look;
     ``none``, ``--no-people``): a rebuild draws them alike."""
-    from nsim.rendering.default_look import DEFAULT_LOOK, DEFAULT_LOOK_SEED
+    from nsim.rendering.default_look import DEFAULT_LOOK, DEFAULT_LOOK_NAME, DEFAULT_LOOK_SEED
 
     out: dict[str, Any] = {"people_from": source}
     if people is not None:
-        out["people_checkpoints"] = [humans[m] if m != DEFAULT_LOOK else "default look" for m in people]
+        out["people_checkpoints"] = [humans[m] if m != DEFAULT_LOOK else DEFAULT_LOOK_NAME for m in people]
     if defaulted:
         out["default_look"] = {"seed": DEFAULT_LOOK_SEED, "people": list(defaulted)}
     return out

@@ -45,7 +45,7 @@ def world(tmp_path_factory):
     assert main(["--workspace", ws, "simulate", "--preset", "tiny", "--set", "max_duration_s=2.0", "--scenario",
                  str(configs_dir() / "scenarios" / "spot_run.json"), "--tag", "trajectory/t"]) == 0
     assert main(["--workspace", ws, "--device", "cpu", "render", "--trajectory", "trajectory/t", "--scene", "scene/t",
-                 "--rig", str(SPOT), "--preset", "tiny", "--set", f"sensors=[{','.join(CAMERAS)}]",
+                 "--rig", str(SPOT), "--preset", "tiny", "--set", f"sensors=[{','.join(CAMERAS)}]", "--no-people",
                  "--tag", "render/spot"]) == 0
     assert main(["--workspace", ws, "--device", "cpu", "render", "--poses", "capture/t", "--scene", "scene/t",
                  "--preset", "tiny", "--set", "frames=heldout", "--set", "tick_stride=1", "--set", "image_scale=1.0",
@@ -238,7 +238,7 @@ def test_lidar_against_the_oracle(world):
     ws = str(world.root)
     assert main(["--workspace", ws, "--device", "cpu", "render", "--trajectory", "trajectory/t", "--scene", "scene/t",
                  "--rig", str(SPOT), "--preset", "tiny", "--set", "sensors=[lidar]", "--set", "max_frames=2",
-                 "--tag", "render/lidar"]) == 0
+                 "--no-people", "--tag", "render/lidar"]) == 0
     assert evaluate(world, "lidar", "render/lidar") == 0
     _, table, records = latest(world)
     (row,) = table["rows"]
@@ -381,6 +381,24 @@ def test_detection_with_people(people):
     assert "people in view" in notes and "actor seed 0" in notes and "frontleft 270 deg" in notes
     meta = json.loads(art.file("evaluation.json").read_text())
     assert "oracle" in meta["ground_truth"][people.resolve("render/people")]
+
+
+def test_the_default_look_is_the_oracles_actor(people):
+    """Without --humans the run's people, whose looks (human/ana ...) this workspace lacks, are drawn with the
+    default look, the test room's actor (seed 0): the oracle's ground truth shows the same bodies where the render
+    does (person masks agree far better than a trained checkpoint's), and detection scores them."""
+    ws = str(people.root)
+    assert main(["--workspace", ws, "--device", "cpu", "render", "--trajectory", "trajectory/t", "--scene", "scene/t",
+                 "--rig", str(SPOT), "--preset", "tiny", "--set", f"sensors=[{','.join(CAMERAS)}]",
+                 "--tag", "render/default-look"]) == 0
+    summary = people.get(people.resolve("render/default-look")).manifest["summary"]
+    assert set(summary["people_checkpoints"]) == {"default look"}
+    assert evaluate(people, "detection", "render/default-look") == 0
+    art, table, _ = latest(people)
+    frames = json.loads(art.file("records.json").read_text())["frames"]
+    ious = [f["mask_iou"] for f in frames if f["mask_iou"] is not None]
+    assert len(ious) >= 3 and np.mean(ious) > 0.8, ious
+    assert "actor seed 0" in " ".join(table["notes"])
 
 
 def test_detection_ground_truth_is_the_oracle_with_the_people(people):
