@@ -153,7 +153,9 @@ class Placement:
 
     landmarks_m: (F, L, 3) world (z up, floor z = 0); NaN where unseen. weights: (F, L).
     cam_to_world: (4, 4). camera_height_m: as used (after scaling). scale: the factor applied to
-    the detector's metres (1 unless a camera or body height was given).
+    the detector's metres (1 unless a camera or body height was given). scale_from: for a moving camera
+    (``nsim.human.moving_camera.place_landmarks_moving``), where its metres per SfM unit came from
+    (``nsim.human.moving_camera.SCALE_SOURCES``); empty for a static one.
     """
 
     landmarks_m: np.ndarray
@@ -161,6 +163,7 @@ class Placement:
     cam_to_world: np.ndarray
     camera_height_m: float
     scale: float
+    scale_from: str = ""
 
 
 def place_landmarks(body_m: np.ndarray, image_uv_px: np.ndarray, visibility: np.ndarray, camera: Camera,

@@ -1,40 +1,74 @@
 """A person filmed by a moving (handheld) camera: detect the motion, find the camera's path, place the person.
 
-1. **Static or moving** (``background_motion_px``): corners of the background (the person's mask,
-   dilated, left out) are tracked from each frame to the next (pyramidal Lucas-Kanade, OpenCV); a
-   pair's motion is the median displacement of the corners tracked there and back again, whose
-   patches match. The camera moves when the median over pairs exceeds ``MOVING_FRACTION`` of the frame's width (a static camera's frames
-   give sub-pixel values: noise and compression).
+1. **Static or moving** (``decide_camera``): two cues, each with its numbers in the decision
+   (``CameraDecision``, logged in one line and kept in ``person_fit.json``).
+
+   * *The background*: corners of the background (the person's mask, dilated, left out) are tracked
+     from each frame to the next (``background_motion_px``: pyramidal Lucas-Kanade, OpenCV); a pair's
+     motion is the median displacement of the corners tracked there and back again, whose patches
+     match. The camera moves when the median over pairs exceeds ``MOVING_FRACTION`` of the frame's
+     width (a static camera's frames give sub-pixel values: noise and compression).
+   * *The person*: a camera that follows a walker sees the legs walk while the person stays where it
+     is in the image, at the same size; a static camera sees a walker cross the image or grow and
+     shrink. The steps are counted in the detector's landmarks (``count_steps``: the ankles' fore-aft
+     separation changes sign at every step), and how far the person advances is measured as a static
+     camera would place it (``nsim.human.monocular.root_translations``, smoothed over
+     ``ROOT_SMOOTHING_S``): a person who takes at least ``MIN_STEPS`` steps but advances less than
+     ``FOLLOWED_MAX_ADVANCE_M`` per step is followed by the camera. This is what tells a camera that
+     follows a walker down a road: the far background hardly moves in the image (a median 0.66 px per
+     frame against a 2.56 px threshold on such a video) while the person walks on.
+
 2. **The camera's path** (``camera_path``): nsim's own SfM (``nsim.sfm.colmap.run_sfm``, what
-   ``nsim reconstruct`` runs) on the frames with the person's dilated mask excluded from feature
-   extraction, so that the walking person does not pull the background's geometry. Its world has
-   an arbitrary scale.
+   ``nsim reconstruct`` runs) with the person's dilated mask excluded from feature extraction, so
+   that the walking person does not pull the background's geometry; on keyframes only (``keyframes``:
+   ``KEYFRAME_FPS`` a second, more where the background moves fast), ``SFM_MAX_FEATURES`` features,
+   sequential matching over ``SFM_OVERLAP`` neighbours, no loop detection. The other frames' poses
+   are interpolated between registered keyframes. Its world has an arbitrary scale. (A 7.4 s
+   following-camera video at 640x360, 89 frames at 12 fps: 1,002 s with every frame; 31 keyframes,
+   all registered, in 68-90 s on two busy cores.)
 3. **Metres** (``place_landmarks_moving``): each frame's landmarks in its camera frame (metric, from
    the detector's body-size prior; ``nsim.human.monocular.root_translations``) go into SfM's world
    as ``R_f p + s C_f`` with the camera's rotation ``R_f`` and centre ``C_f``. The one unknown,
-   ``s`` (metres per SfM unit), comes from the floor when SfM's sparse points show one
-   (``nsim.sfm.align.gravity_align``, as ``nsim reconstruct``): the camera's height above it in
-   SfM units against its height above the person's lowest foot (heel or toe, ``SOLE_HEIGHT_M``
-   over the floor) in metres, medians over the frames; the world is then SfM's, floor z = 0.
-   Without a floor, ``s`` is where the person's root moves most nearly on a straight line at
-   constant speed (``metric_scale``: a wrong ``s`` adds a multiple of the camera's own path to
-   the root's; linear least squares in ``s``), and up and floor come from the person as for a static camera
+   ``s`` (metres per SfM unit), comes from, in this order:
+
+   * *the floor*, when SfM's sparse points show one (``nsim.sfm.align.gravity_align``, as ``nsim
+     reconstruct``): the camera's height above it in SfM units against its height above the
+     person's lowest foot (heel or toe, ``SOLE_HEIGHT_M`` over the floor) in metres, medians over
+     the frames; the world is then SfM's, floor z = 0;
+   * *the path*: where the person's root moves most nearly on a straight line at constant speed
+     (``metric_scale``: a wrong ``s`` adds a multiple of the camera's own path to the root's; linear
+     least squares in ``s``); only when the camera's own path is far enough from a straight line at
+     constant speed for that to tell (``MAX_PATH_SCALE_ERROR``); a camera that follows a walker down a
+     straight road cannot;
+   * *the steps*, the last resort: ``s`` makes the person's mean velocity as fast as its cadence
+     says (``speed_from_cadence``: nsim's stride-speed relation, ``nsim.human.gait_phase``), logged
+     with the number.
+
+   Without the floor, up and floor come from the person as for a static camera
    (``nsim.human.monocular.floor_frame``). ``--camera-height`` (the median camera height above the
-   floor) or the person's height then rescales everything.
+   floor) or the person's height then rescales everything. Walking speed and path length are then
+   the world's (``walking_speed_mps``), not the image's.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
+from nsim.human.gait_phase import MIN_SPEED_MPS, STEP_COEFF_M
 from nsim.human.landmarks import LANDMARK_NAMES
 from nsim.human.monocular import Placement, floor_frame, root_translations
-from nsim.human.skeleton import SOLE_HEIGHT_M
+from nsim.human.skeleton import REFERENCE_HEIGHT_M, SOLE_HEIGHT_M
+
+log = logging.getLogger(__name__)
 
 MOVING_FRACTION = 0.004
 """The camera moves when the background's median motion between frames exceeds this share of the width."""
@@ -42,29 +76,84 @@ MOVING_FRACTION = 0.004
 MASK_DILATION_FRACTION = 0.02
 """The person's mask is grown by this share of the frame's width before it excludes the background."""
 
+MIN_STEPS = 3
+"""The person walks (``Steps.walks``) with at least this many steps counted ..."""
+
+MIN_SWING_M = 0.08
+"""... and the ankles' fore-aft separation varying by at least this much (standard deviation, the detector's metres;
+a walk swings them by 0.2-0.3 m, a person standing still by a few centimetres of noise)."""
+
+FOLLOWED_MAX_ADVANCE_M = 0.25
+"""A walking person who advances less than this per step as a static camera would place them is followed by the
+camera (a walker's step is 0.5-0.8 m; a following camera's video gave 0.04-0.15 m)."""
+
+ROOT_SMOOTHING_S = 0.5
+"""The person's path is smoothed over this (Gaussian sigma) before its length is taken: the detector's depth jitters
+from frame to frame, and the hips sway with every step."""
+
+WALK_CADENCE_STEPS_S = (1.2, 2.6)
+"""Steps per second of a walk; outside, the fit says so in a warning (a slow-motion video shows fewer)."""
+
+KEYFRAME_FPS = 4.0
+"""SfM sees at most about this many frames a second (the others' poses are interpolated) ..."""
+
+KEYFRAME_MOTION_FRACTION = 0.05
+"""... and a keyframe whenever the background has moved this share of the width since the last one."""
+
+MAX_INTERPOLATION_GAP_S = 1.0
+"""Poses are interpolated between registered keyframes at most this far apart; the frames of a longer gap are not placed."""
+
+SFM_MAX_FEATURES = 2048
+SFM_OVERLAP = 5
+"""SfM on the keyframes: SIFT features per image; sequential matching against this many next keyframes."""
+
+MIN_REGISTERED_FRACTION = 0.5
+"""SfM must place at least this share of the keyframes, else the path is refused in one line."""
+
+MAX_PATH_SCALE_ERROR = 0.1
+"""The path's scale (``metric_scale``) is used only when its relative standard error (``metric_scale_error``) is below
+this: a camera that moves nearly on a straight line at constant speed leaves it to the person's own jitter."""
+
+FB_MAX_PX = 1.0
+"""A background corner counts when tracking it forward and back again lands within this many pixels."""
+
+PATCH_MAX_DIFF = 15.0
+"""... and its 21 x 21 patch differs from where it landed by less than this mean absolute grey level (0-255)."""
+
+SCALE_SOURCES = ("floor", "path", "steps")
+"""``Placement.scale_from`` of a moving camera: where its metres per SfM unit came from (module docstring, step 3)."""
 
 _FEET = [LANDMARK_NAMES.index(n) for n in ("left_heel", "right_heel", "left_foot_index", "right_foot_index")]
+_ANKLES = [LANDMARK_NAMES.index("left_ankle"), LANDMARK_NAMES.index("right_ankle")]
 
 
 @dataclass(frozen=True, eq=False)
 class CameraPath:
     """A moving camera found by SfM (``camera_path``), in SfM's world and scale.
 
-    cam_to_world: (N, 4, 4) OpenCV axes (NaN: frame not registered). camera: the shared intrinsics.
+    cam_to_world: (N, 4, 4) OpenCV axes, one per frame (NaN: not placed: outside the registered keyframes' span or in a
+    gap longer than ``MAX_INTERPOLATION_GAP_S``). camera: the shared intrinsics.
     points_xyz: (P, 3) SfM's sparse points of the background.
+    keyframes: (K,) the frames SfM saw; registered: (K,) bool, those it placed (None: every frame, all registered).
+    seconds: SfM's wall time.
     """
 
     cam_to_world: np.ndarray
     camera: Camera
     points_xyz: np.ndarray
+    keyframes: np.ndarray | None = None
+    registered: np.ndarray | None = None
+    seconds: float = float("nan")
 
-
-FB_MAX_PX = 1.0
-"""A background corner counts when tracking it forward and back again lands within this many pixels."""
-
-
-PATCH_MAX_DIFF = 15.0
-"""... and its 21 x 21 patch differs from where it landed by less than this mean absolute grey level (0-255)."""
+    def summary(self) -> dict[str, Any]:
+        """What ``person_fit.json`` records of the path."""
+        n = self.cam_to_world.shape[0]
+        keys = np.arange(n) if self.keyframes is None else self.keyframes
+        reg = np.ones(len(keys), bool) if self.registered is None else self.registered
+        return {"keyframes": int(len(keys)), "keyframes_registered": int(reg.sum()),
+                "frames_placed": int(np.isfinite(self.cam_to_world).all(axis=(1, 2)).sum()),
+                "points": int(len(self.points_xyz)), "hfov_deg": float(self.camera.fov_deg[0]),
+                "seconds": round(float(self.seconds), 1)}
 
 
 def _dilated(mask: np.ndarray, width: int) -> np.ndarray:
@@ -114,37 +203,278 @@ def camera_moves(motion_px: np.ndarray, width: int) -> bool:
     return bool(m.size) and float(np.median(m)) > MOVING_FRACTION * width
 
 
-def camera_path(frames: list[np.ndarray], person_masks: np.ndarray, hfov_deg: float | None = None,
-                work_dir: str | Path | None = None, num_threads: int = -1) -> CameraPath:
-    """The moving camera of each frame by SfM with the person masked out (step 2 of the module docstring).
+# ------------------------------------------------------------------------------------------------- the person's steps
 
-    The intrinsics are shared by every frame: fixed at ``hfov_deg`` when given, else estimated.
-    InputError (``run_sfm``'s) when too few frames register.
+
+@dataclass(frozen=True)
+class Steps:
+    """A person's steps counted in the detector's landmarks (``count_steps``).
+
+    count: steps (sign changes of the ankles' fore-aft separation); cadence_steps_s: steps per second between the
+    first and the last one (NaN: fewer than two); swing_m: the separation's standard deviation (detector's metres).
     """
+
+    count: int
+    cadence_steps_s: float
+    swing_m: float
+
+    @property
+    def walks(self) -> bool:
+        return self.count >= MIN_STEPS and self.swing_m >= MIN_SWING_M and math.isfinite(self.cadence_steps_s)
+
+
+def _filled(values: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """``values (F, ...)`` with the rows where ``ok`` is False linearly interpolated from the others (held at the ends)."""
+    idx = np.flatnonzero(ok)
+    flat = values.reshape(len(values), -1)
+    out = np.stack([np.interp(np.arange(len(values)), idx, flat[idx, k]) for k in range(flat.shape[1])], axis=1)
+    return out.reshape(values.shape)
+
+
+def count_steps(body_m: np.ndarray, fps: float) -> Steps:
+    """The steps of a walking person in F consecutive frames (module docstring, step 1).
+
+    body_m: (F, L, 3) the detector's landmarks relative to the hips (NaN: not found). The ankles' separation
+    (left minus right) swings back and forth along the walking direction, its main axis over the frames; a step is
+    counted where it changes sign, with a hysteresis of 30 % of its standard deviation (noise around zero is no step).
+    """
+    d = np.asarray(body_m, dtype=np.float64)[:, _ANKLES[0]] - np.asarray(body_m, dtype=np.float64)[:, _ANKLES[1]]
+    ok = np.isfinite(d).all(axis=1)
+    if ok.sum() < 3:
+        return Steps(0, float("nan"), 0.0)
+    d = _filled(d, ok)
+    d -= np.median(d, axis=0)
+    axis = np.linalg.svd(d, full_matrices=False)[2][0]
+    sig = d @ axis
+    swing = float(sig.std())
+    h = 0.3 * swing
+    state, crossings = 0, []
+    for i, v in enumerate(sig):
+        side = 1 if v > h else -1 if v < -h else 0
+        if side and side != state:
+            if state:
+                crossings.append(i)
+            state = side
+    cadence = (len(crossings) - 1) * fps / (crossings[-1] - crossings[0]) if len(crossings) >= 2 else float("nan")
+    return Steps(len(crossings), float(cadence), swing)
+
+
+def speed_from_cadence(cadence_steps_s: float, height_m: float = REFERENCE_HEIGHT_M) -> float:
+    """Walking speed (m/s) of a person of ``height_m`` taking ``cadence_steps_s`` steps a second.
+
+    The inverse of ``nsim.human.gait.cadence_steps_per_min`` (nsim's one stride-speed relation,
+    ``nsim.human.gait_phase``: a step is ``STEP_COEFF_M * sqrt(v) * height / 1.75 m``), so
+    ``v = (STEP_COEFF_M * cadence * height / 1.75 m)^2``; held at ``MIN_SPEED_MPS`` below it.
+    """
+    v = (STEP_COEFF_M * float(cadence_steps_s) * float(height_m) / REFERENCE_HEIGHT_M) ** 2
+    return max(v, MIN_SPEED_MPS)
+
+
+def path_length_m(xyz_m: np.ndarray, fps: float, smoothing_s: float = ROOT_SMOOTHING_S) -> float:
+    """Length of a path ``(F, D)`` sampled at ``fps`` after Gaussian smoothing over ``smoothing_s`` (NaN rows
+    interpolated; NaN if fewer than two rows are finite). The ends are padded by point reflection, so a straight
+    walk at constant speed keeps its length (padding by repeating the ends would shorten it by about a sigma)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    p = np.asarray(xyz_m, dtype=np.float64)
+    ok = np.isfinite(p).all(axis=1)
+    if ok.sum() < 2:
+        return float("nan")
+    first, last = np.flatnonzero(ok)[[0, -1]]
+    p = _filled(p, ok)[first:last + 1]
+    sigma = smoothing_s * fps
+    k = min(len(p) - 1, int(math.ceil(4.0 * sigma)))
+    padded = np.concatenate([2.0 * p[0] - p[k:0:-1], p, 2.0 * p[-1] - p[-2:-k - 2:-1]]) if k > 0 else p
+    p = gaussian_filter1d(padded, sigma, axis=0, mode="nearest")[k:k + len(p)]
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def walking_speed_mps(root_xyz_m: np.ndarray, fps: float) -> float:
+    """A walker's speed over consecutive frames: the length of the root's horizontal path (x, y of a z-up world),
+    smoothed over ``ROOT_SMOOTHING_S`` (the hips' sway), over the time it took."""
+    r = np.asarray(root_xyz_m, dtype=np.float64)
+    if len(r) < 2:
+        return float("nan")
+    return path_length_m(r[:, :2], fps) * fps / (len(r) - 1)
+
+
+# ------------------------------------------------------------------------------------------------- static or moving
+
+
+@dataclass(frozen=True)
+class CameraDecision:
+    """Static or moving, and why (module docstring, step 1).
+
+    moving: the decision. by: what decided it: "background", "person" (the person walks on the spot in the image),
+    "neither" (static: neither cue says it moves), or "option" (``--camera`` said so).
+    background_px: the background's median motion per frame (NaN: not measured or no background seen);
+    threshold_px: the motion above which the camera moves; steps: the person's steps; advance_per_step_m: how far
+    the person advances per step as a static camera would place them.
+    """
+
+    moving: bool
+    by: str
+    background_px: float
+    threshold_px: float
+    steps: Steps
+    advance_per_step_m: float
+
+    def describe(self) -> str:
+        bg = (f"the background moves {self.background_px:.2f} px a frame (threshold {self.threshold_px:.2f})"
+              if math.isfinite(self.background_px) else "no background motion measured")
+        walk = (f"the person takes {self.steps.count} steps ({self.steps.cadence_steps_s:.2f} a second) and advances "
+                f"{self.advance_per_step_m:.2f} m per step in a static camera's view (followed below "
+                f"{FOLLOWED_MAX_ADVANCE_M:g} m)" if self.steps.walks else "the person does not walk")
+        verdict = {"background": "the camera moves", "person": "the camera follows the person",
+                   "neither": "the camera is static", "option": f"the camera is {'moving' if self.moving else 'static'} "
+                                                              "(--camera)"}[self.by]
+        return f"{verdict}: {bg}; {walk}"
+
+    def to_dict(self) -> dict[str, Any]:
+        def num(v: float) -> float | None:
+            return round(float(v), 4) if math.isfinite(v) else None
+
+        return {"camera": "moving" if self.moving else "static", "by": self.by,
+                "background_px": num(self.background_px), "threshold_px": num(self.threshold_px),
+                "steps": self.steps.count, "cadence_steps_s": num(self.steps.cadence_steps_s),
+                "swing_m": num(self.steps.swing_m), "advance_per_step_m": num(self.advance_per_step_m)}
+
+
+def decide_camera(motion_px: np.ndarray | None, width: int, body_m: np.ndarray, image_uv_px: np.ndarray,
+                  visibility: np.ndarray, camera: Camera, fps: float, mode: str = "auto") -> CameraDecision:
+    """Static or moving (module docstring, step 1) from F consecutive frames of one person.
+
+    motion_px: ``background_motion_px`` (None: not measured); body_m, image_uv_px, visibility: the detector's
+    (F, L, ...) for those frames (NaN where not found); camera: a static camera's intrinsics (to place the person as
+    it would); mode: "auto" decides, "static" / "moving" only records the numbers beside the given answer.
+    """
+    m = np.asarray([] if motion_px is None else motion_px, dtype=np.float64)
+    m = m[np.isfinite(m)]
+    background = float(np.median(m)) if m.size else float("nan")
+    threshold = MOVING_FRACTION * width
+    steps = count_steps(body_m, fps)
+    w = np.clip(np.nan_to_num(np.asarray(visibility, dtype=np.float64)), 0.0, 1.0)
+    root = root_translations(body_m, image_uv_px, w, camera)
+    advance = path_length_m(root, fps) / max(steps.count, 1)
+    if mode != "auto":
+        return CameraDecision(mode == "moving", "option", background, threshold, steps, advance)
+    if background > threshold:
+        return CameraDecision(True, "background", background, threshold, steps, advance)
+    if steps.walks and advance < FOLLOWED_MAX_ADVANCE_M:
+        return CameraDecision(True, "person", background, threshold, steps, advance)
+    return CameraDecision(False, "neither", background, threshold, steps, advance)
+
+
+# ------------------------------------------------------------------------------------------------- the camera's path
+
+
+def keyframes(num_frames: int, fps: float, motion_px: np.ndarray | None = None, width: int | None = None) -> np.ndarray:
+    """The frames SfM sees, ``(K,)`` increasing (module docstring, step 2): the first, then the next whenever
+    ``1 / KEYFRAME_FPS`` seconds have passed or the background (``motion_px``, per frame pair; NaN counts as none)
+    has moved ``KEYFRAME_MOTION_FRACTION`` of ``width`` since the last keyframe, and the last frame."""
+    step = max(1, int(round(fps / KEYFRAME_FPS)))
+    moved = np.zeros(max(num_frames - 1, 0)) if motion_px is None else np.nan_to_num(np.asarray(motion_px, float))
+    limit = KEYFRAME_MOTION_FRACTION * width if width else math.inf
+    keys, since, acc = [0], 0, 0.0
+    for i in range(1, num_frames):
+        since += 1
+        acc += float(moved[i - 1]) if i - 1 < len(moved) else 0.0
+        if since >= step or acc >= limit or i == num_frames - 1:
+            keys.append(i)
+            since, acc = 0, 0.0
+    return np.asarray(keys if num_frames > 0 else [], dtype=np.int64)
+
+
+def interpolate_path(keys: np.ndarray, key_c2w: np.ndarray, num_frames: int, fps: float) -> np.ndarray:
+    """Every frame's camera ``(num_frames, 4, 4)`` from the keyframes' ``key_c2w (K, 4, 4)`` (NaN: not registered):
+    interpolated between consecutive registered keyframes at most ``MAX_INTERPOLATION_GAP_S`` apart (positions
+    linear, rotations slerped: ``nsim.geometry.transforms.interpolate_poses``), NaN elsewhere."""
+    from nsim.geometry.transforms import interpolate_poses
+
+    keys = np.asarray(keys, dtype=np.int64)
+    ok = np.isfinite(key_c2w).all(axis=(1, 2))
+    out = np.full((num_frames, 4, 4), np.nan)
+    k, T = keys[ok], np.asarray(key_c2w, dtype=np.float64)[ok]
+    if len(k) == 1:
+        out[k[0]] = T[0]
+    for a in range(len(k) - 1):
+        if (k[a + 1] - k[a]) / fps > MAX_INTERPOLATION_GAP_S:
+            out[k[a]], out[k[a + 1]] = T[a], T[a + 1]
+            continue
+        frames = np.arange(k[a], k[a + 1] + 1)
+        out[frames] = interpolate_poses(k[a:a + 2] / fps, T[a:a + 2], frames / fps)
+    return out
+
+
+def camera_path(frames: list[np.ndarray], person_masks: np.ndarray, fps: float, hfov_deg: float | None = None,
+                motion_px: np.ndarray | None = None, work_dir: str | Path | None = None, num_threads: int = -1,
+                source: str = "video") -> CameraPath:
+    """The moving camera of each frame by SfM on keyframes with the person masked out (step 2 of the module docstring).
+
+    frames: N ``(H, W, 3)`` uint8 RGB at ``fps``; person_masks: (N, H, W) bool; motion_px: ``background_motion_px``
+    (more keyframes where the background moves fast; None: by time only). The intrinsics are shared by every frame:
+    fixed at ``hfov_deg`` when given, else estimated. InputError naming ``source`` when too few keyframes register.
+    """
+    import time
+
     from nsim.io.images import write_image
     from nsim.sfm.colmap import run_sfm
     from nsim.sfm.options import SfmOptions
 
+    t0 = time.perf_counter()
+    n = len(frames)
     h, w = frames[0].shape[:2]
+    keys = keyframes(n, fps, motion_px, w)
     known = None if hfov_deg is None else Camera.pinhole_from_fov(w, h, float(hfov_deg))
     opts = SfmOptions(matcher="sequential", loop_detection=False, num_threads=num_threads, camera_model="PINHOLE",
-                      shared_intrinsics=True)
+                      shared_intrinsics=True, max_features=SFM_MAX_FEATURES, overlap=SFM_OVERLAP,
+                      retry_below_fraction=0.9, min_registered_fraction=0.0)
     with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         root = Path(tmp)
         (root / "images").mkdir()
         (root / "masks").mkdir()
-        names = [f"frame_{i:05d}.png" for i in range(len(frames))]
-        for name, rgb, m in zip(names, frames, person_masks, strict=True):
-            write_image(root / "images" / name, np.asarray(rgb, dtype=np.uint8))
-            write_image(root / "masks" / f"{name}.png", (~_dilated(m, w)).astype(np.uint8) * 255)
-        result = run_sfm(root / "images", root / "sfm", opts, known_camera=known, image_names=names,
-                         mask_dir=root / "masks")
-    c2w = np.full((len(frames), 4, 4), np.nan)
-    for i, name in enumerate(names):
-        if name in result.cam_to_world:
-            c2w[i] = result.cam_to_world[name]
+        names = [f"frame_{i:05d}.png" for i in keys]
+        for name, i in zip(names, keys, strict=True):
+            write_image(root / "images" / name, np.asarray(frames[i], dtype=np.uint8))
+            write_image(root / "masks" / f"{name}.png", (~_dilated(person_masks[i], w)).astype(np.uint8) * 255)
+        try:
+            result = run_sfm(root / "images", root / "sfm", opts, known_camera=known, image_names=names,
+                             mask_dir=root / "masks")
+            placed = len(result.registered_names)
+        except InputError:  # fewer than two registered (run_sfm's hint names reconstruct's options, not these)
+            placed = 0
+    if placed < MIN_REGISTERED_FRACTION * len(names):
+        raise InputError(f"{source}: the camera moves, but SfM placed only {placed} of {len(names)} keyframes from the "
+                         "background (too little of it in view, or too plain); if the camera stands still, give "
+                         "--camera static")
+    key_c2w = np.stack([result.cam_to_world.get(name, np.full((4, 4), np.nan)) for name in names])
     camera = known if known is not None else result.cameras[result.registered_names[0]]
-    return CameraPath(c2w, camera, np.asarray(result.points_xyz, dtype=np.float64))
+    return CameraPath(interpolate_path(keys, key_c2w, n, fps), camera, np.asarray(result.points_xyz, dtype=np.float64),
+                      keys, np.isfinite(key_c2w).all(axis=(1, 2)), time.perf_counter() - t0)
+
+
+# ------------------------------------------------------------------------------------------------- metres
+
+
+def _line_residuals(x: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """What is left of ``x (F, 3)`` after the best straight line at constant speed in ``time (F,)`` (least squares)."""
+    V = np.stack([np.ones(len(time)), time - time.mean()], axis=1)
+    return x - V @ (np.linalg.pinv(V) @ x)
+
+
+def _path_parts(root_cam_m: np.ndarray, cam_to_world: np.ndarray,
+                times: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``metric_scale``'s two paths after their best straight lines at constant speed: the root's rotated into the
+    world ``R_f t_f`` and the camera's ``C_f`` (rows where both are finite; None: fewer than 3); and the camera
+    centres' spread (sum of squares about their mean)."""
+    t = np.asarray(root_cam_m, dtype=np.float64)
+    T = np.asarray(cam_to_world, dtype=np.float64)
+    time = np.arange(len(t), dtype=np.float64) if times is None else np.asarray(times, dtype=np.float64)
+    ok = np.isfinite(t).all(1) & np.isfinite(T[:, :3, :]).all((1, 2))
+    if ok.sum() < 3:
+        return None
+    a, b = np.einsum("fij,fj->fi", T[ok, :3, :3], t[ok]), T[ok, :3, 3]
+    return _line_residuals(a, time[ok]), _line_residuals(b, time[ok]), float(((b - b.mean(0)) ** 2).sum())
 
 
 def metric_scale(root_cam_m: np.ndarray, cam_to_world: np.ndarray, times: np.ndarray | None = None) -> float:
@@ -157,23 +487,54 @@ def metric_scale(root_cam_m: np.ndarray, cam_to_world: np.ndarray, times: np.nda
     speed (least squares per axis against ``1, t``), linear least squares in ``s``. (Second
     differences instead are dominated by the detector's frame-to-frame depth noise, which biases
     ``s`` low.) NaN when the camera itself moves on a straight line at constant speed (then the
-    images cannot tell).
+    images cannot tell); ``metric_scale_error`` says how well the path tells it.
     """
+    parts = _path_parts(root_cam_m, cam_to_world, times)
+    if parts is None:
+        return float("nan")
+    pa, pb, spread = parts
+    den = float((pb**2).sum())
+    if den <= 1e-9 * max(spread, 1e-12):
+        return float("nan")
+    return -float((pa * pb).sum()) / den
+
+
+def metric_scale_error(root_cam_m: np.ndarray, cam_to_world: np.ndarray, times: np.ndarray | None, s: float) -> float:
+    """The relative standard error of ``metric_scale``'s ``s``: what is left of the root's path at ``s`` taken as
+    noise, against how far the camera's own path bends (a camera on a straight line at constant speed: infinite)."""
+    parts = _path_parts(root_cam_m, cam_to_world, times)
+    if parts is None or not (np.isfinite(s) and s > 0):
+        return float("inf")
+    pa, pb, _ = parts
+    den = float((pb**2).sum())
+    dof = max(pa.size - 1, 1)
+    sigma = math.sqrt(float(((pa + s * pb) ** 2).sum()) / dof)
+    return sigma / math.sqrt(den) / s if den > 0 else float("inf")
+
+
+def steps_scale(root_cam_m: np.ndarray, cam_to_world: np.ndarray, times: np.ndarray, speed_mps: float) -> float:
+    """Metres per SfM unit making the root's mean velocity (the slope of the best straight line through ``R_f t_f +
+    s C_f`` in ``times``) ``speed_mps`` long (the larger root of that quadratic in ``s``; NaN if none is > 0)."""
     t = np.asarray(root_cam_m, dtype=np.float64)
     T = np.asarray(cam_to_world, dtype=np.float64)
-    time = np.arange(len(t), dtype=np.float64) if times is None else np.asarray(times, dtype=np.float64)
+    time = np.asarray(times, dtype=np.float64)
     ok = np.isfinite(t).all(1) & np.isfinite(T[:, :3, :]).all((1, 2))
     if ok.sum() < 3:
         return float("nan")
-    a = np.einsum("fij,fj->fi", T[ok, :3, :3], t[ok])
-    b = T[ok, :3, 3]
-    V = np.stack([np.ones(ok.sum()), time[ok] - time[ok].mean()], axis=1)
-    proj = np.eye(len(V)) - V @ np.linalg.pinv(V)
-    pa, pb = proj @ a, proj @ b
-    den = float((pb**2).sum())
-    if den <= 1e-9 * max(float(((b - b.mean(0)) ** 2).sum()), 1e-12):
+    tc = time[ok] - time[ok].mean()
+    if not (tc**2).sum() > 0:
         return float("nan")
-    return -float((pa * pb).sum()) / den
+
+    def slope(x: np.ndarray) -> np.ndarray:
+        return (tc[:, None] * (x - x.mean(0))).sum(0) / (tc**2).sum()
+
+    a, b = slope(np.einsum("fij,fj->fi", T[ok, :3, :3], t[ok])), slope(T[ok, :3, 3])
+    qa, qb, qc = float(b @ b), 2.0 * float(a @ b), float(a @ a) - float(speed_mps) ** 2
+    disc = qb * qb - 4.0 * qa * qc
+    if qa <= 0 or disc < 0:
+        return float("nan")
+    s = (-qb + math.sqrt(disc)) / (2.0 * qa)
+    return s if s > 0 else float("nan")
 
 
 def floor_scale(cam_points_m: np.ndarray, weights: np.ndarray, cam_to_world_zup: np.ndarray,
@@ -200,19 +561,21 @@ def floor_scale(cam_points_m: np.ndarray, weights: np.ndarray, cam_to_world_zup:
 def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibility: np.ndarray, camera: Camera,
                            cam_to_world_sfm: np.ndarray, points_xyz: np.ndarray | None = None,
                            camera_height_m: float | None = None, body_height_m: float | None = None,
-                           times: np.ndarray | None = None) -> Placement:
+                           times: np.ndarray | None = None, steps_speed_mps: float | None = None) -> Placement:
     """``nsim.human.monocular.place_landmarks`` for a moving camera (step 3 of the module docstring).
 
     cam_to_world_sfm: (F, 4, 4) SfM's camera of each frame (NaN rows: not registered, not placed);
     points_xyz: SfM's sparse points (None or no floor among them: the scale from the root's path,
-    ``metric_scale``, with the frames' ``times`` in seconds, None: evenly spaced).
+    ``metric_scale``, with the frames' ``times`` in seconds, None: evenly spaced); steps_speed_mps: the speed the
+    person's steps say (``speed_from_cadence``), the scale's last resort (``steps_scale``; None: none).
     Returns a ``Placement`` whose ``cam_to_world`` is (F, 4, 4) (z-up metric world, floor z = 0),
-    ``camera_height_m`` the median camera height and ``scale`` the metres per SfM unit.
-    ValueError if no frame can be placed or no scale found.
+    ``camera_height_m`` the median camera height, ``scale`` the metres per SfM unit and ``scale_from`` where that
+    came from (``SCALE_SOURCES``). ValueError if no frame can be placed or no scale found.
     """
     if camera_height_m is not None and body_height_m is not None:
         raise ValueError("place_landmarks_moving: give camera_height_m or body_height_m, not both")
     c2w = np.asarray(cam_to_world_sfm, dtype=np.float64)
+    time = np.arange(len(c2w), dtype=np.float64) if times is None else np.asarray(times, dtype=np.float64)
     w = np.clip(np.nan_to_num(np.asarray(visibility, dtype=np.float64)), 0.0, 1.0)
     t = root_translations(body_m, image_uv_px, w, camera)
     placed = np.isfinite(t).all(axis=1) & np.isfinite(c2w).all(axis=(1, 2))
@@ -227,16 +590,26 @@ def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibili
         grav = gravity_align(points_xyz, c2w[placed])
         if grav.floor_found:
             G = grav.T
-    s = float("nan")
+    s, scale_from = float("nan"), ""
     if G is not None:  # SfM's floor: z-up SfM world, scale from the camera's height over the person's feet
         zup = np.einsum("ij,fjk->fik", G, c2w)
-        s = floor_scale(np.where(placed[:, None, None], cam, np.nan), w, zup)
+        s, scale_from = floor_scale(np.where(placed[:, None, None], cam, np.nan), w, zup), "floor"
+    root_t = np.where(placed[:, None], t, np.nan)
     if not (np.isfinite(s) and s > 0):
         G = None
-        s = metric_scale(np.where(placed[:, None], t, np.nan), c2w, times)
+        s, scale_from = metric_scale(root_t, c2w, time), "path"
+        if not metric_scale_error(root_t, c2w, time, s) <= MAX_PATH_SCALE_ERROR:
+            s = float("nan")
+    if not (np.isfinite(s) and s > 0) and steps_speed_mps is not None:
+        target = float(steps_speed_mps)
+        if body_height_m is not None:  # the speed is in the person's metres; the path is still in the detector's
+            from nsim.human.fit import estimate_body
+
+            target *= estimate_body(cam, w).height_m / float(body_height_m)
+        s, scale_from = steps_scale(root_t, c2w, time, target), "steps"
     if not (np.isfinite(s) and s > 0):
-        raise ValueError("place_landmarks_moving: the camera's path gives no scale (no floor among its points and "
-                         "it moves at a constant velocity); give --camera-height")
+        raise ValueError("place_landmarks_moving: the camera's path gives no scale (no floor among its points, it "
+                         "moves too nearly on a straight line at constant speed, and the person's steps were not seen)")
     if G is None:
         R, C = c2w[:, :3, :3], s * c2w[:, :3, 3]
     else:
@@ -264,8 +637,13 @@ def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibili
         raise ValueError(f"place_landmarks_moving: cannot scale to the given height (scale {scale!r})")
     world = world * scale
     cams[:, :3, 3] *= scale
-    return Placement(world, w, cams, height * scale, s * scale)
+    return Placement(world, w, cams, height * scale, s * scale, scale_from)
 
 
-__all__ = ["FB_MAX_PX", "PATCH_MAX_DIFF", "MASK_DILATION_FRACTION", "MOVING_FRACTION", "CameraPath", "background_motion_px", "camera_moves",
-           "camera_path", "floor_scale", "metric_scale", "place_landmarks_moving"]
+__all__ = ["FB_MAX_PX", "FOLLOWED_MAX_ADVANCE_M", "KEYFRAME_FPS", "KEYFRAME_MOTION_FRACTION", "MASK_DILATION_FRACTION",
+           "MAX_INTERPOLATION_GAP_S", "MAX_PATH_SCALE_ERROR", "MIN_REGISTERED_FRACTION", "MIN_STEPS", "MIN_SWING_M", "MOVING_FRACTION",
+           "PATCH_MAX_DIFF", "ROOT_SMOOTHING_S", "SCALE_SOURCES", "SFM_MAX_FEATURES", "SFM_OVERLAP",
+           "WALK_CADENCE_STEPS_S", "CameraDecision", "CameraPath", "Steps", "background_motion_px", "camera_moves",
+           "camera_path", "count_steps", "decide_camera", "floor_scale", "interpolate_path", "keyframes",
+           "metric_scale", "metric_scale_error", "path_length_m", "place_landmarks_moving", "speed_from_cadence",
+           "steps_scale", "walking_speed_mps"]

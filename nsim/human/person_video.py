@@ -1,17 +1,20 @@
-"""A person in a static camera's video -> masks, a metric camera and the nsim body's poses per frame.
+"""A person in a static or moving camera's video -> masks, a metric camera and the nsim body's poses per frame.
 
 ``fit_person(observations, fps, cfg)`` is the core behind ``nsim train-human --video``: arrays
 in (a detector's ``nsim.human.landmarks.Observations``), arrays out (``PersonFit``). It
 
 1. checks the input, each failure one ``InputError`` line: a video shorter than
    ``min_duration_s``; no person in any frame; a second person in more than
-   ``max_crowded_fraction`` of the frames where someone was found; too few frames left;
+   ``max_crowded_fraction`` of the frames where someone was found; too few frames left
+   (``person_frames``: these need the detector's results only, so a caller runs them before
+   anything costly, such as the moving camera's SfM);
 2. drops the frames without the person or with a second person in view, and reports them as
    stretches (``DroppedStretch``: first and last frame, why);
    makes the limbs' left and right consistent over the video (``consistent_sides``) and gives no weight to
    landmarks that jump off their own image track (``track_outliers``: a hidden arm guessed far off);
 3. places the landmarks in a metric z-up world seen by a static camera (``nsim.human.monocular``),
-   or by a moving camera whose path SfM found (``nsim.human.moving_camera``; ``camera_path``);
+   or by a moving camera whose path SfM found (``nsim.human.moving_camera``; ``camera_path``), its
+   scale from SfM's floor, the path's shape or, last, the person's steps (``count_steps``);
 4. estimates the person's bone lengths once and fits joint angles per frame to the landmarks in
    3D and to where the camera saw them (``nsim.human.fit``).
 
@@ -41,6 +44,14 @@ from nsim.human.landmarks import (
     track_outliers,
 )
 from nsim.human.monocular import place_landmarks, static_camera
+from nsim.human.moving_camera import (
+    Steps,
+    count_steps,
+    place_landmarks_moving,
+    speed_from_cadence,
+    walking_speed_mps,
+)
+from nsim.human.skeleton import REFERENCE_HEIGHT_M
 
 REFERENCE_WIDTH_PX = 480
 """``PersonVideoConfig.sigma_px`` is given for frames this wide (it scales with the width)."""
@@ -142,7 +153,8 @@ class PersonFit:
     fps: the video's frame rate. relabelled: per limb pair (``nsim.human.landmarks.LIMB_SIDES``), the video
     frames whose left and right landmarks were exchanged before fitting (``PersonVideoConfig.consistent_sides``).
     track_outliers: (video frame, landmark name) of every landmark left out of the fit as off its track
-    (``PersonVideoConfig.track_outlier_torsos``).
+    (``PersonVideoConfig.track_outlier_torsos``). scale_from: a moving camera's scale source
+    (``nsim.human.monocular.Placement``); steps: the person's steps as counted for it (None: a static camera).
     """
 
     frames: np.ndarray
@@ -156,6 +168,8 @@ class PersonFit:
     fps: float
     relabelled: dict[str, list[int]] = field(default_factory=dict)
     track_outliers: tuple[tuple[int, str], ...] = ()
+    scale_from: str = ""
+    steps: Steps | None = None
 
     def human_poses(self, file_paths: tuple[str | None, ...] | None = None):
         """The poses as ``nsim.human.data.HumanPoses`` (root orientation in ``root_to_world``)."""
@@ -171,13 +185,21 @@ class PersonFit:
                           {"source": "nsim person video fit", "camera_height_m": self.camera_height_m,
                            "scale": self.scale, "dropped": [d.describe(self.fps) for d in self.dropped]})
 
+    def longest_run(self) -> np.ndarray:
+        """Rows of the longest run of consecutive kept frames."""
+        runs = np.split(np.arange(self.frames.size), np.flatnonzero(np.diff(self.frames) != 1) + 1)
+        return max(runs, key=len)
+
+    def walking_speed_mps(self) -> float:
+        """The person's walking speed in the world over the longest unbroken run of frames
+        (``nsim.human.moving_camera.walking_speed_mps``)."""
+        return walking_speed_mps(self.poses.root_positions_m[self.longest_run()], self.fps)
+
     def motion_clip(self, name: str = "person"):
         """The longest run of consecutive kept frames as a ``MotionClip`` (for ``write_bvh``)."""
         from nsim.human.motion import MotionClip
 
-        breaks = np.flatnonzero(np.diff(self.frames) != 1) + 1
-        runs = np.split(np.arange(self.frames.size), breaks)
-        run = max(runs, key=len)
+        run = self.longest_run()
         p = self.poses
         return MotionClip(p.body.skeleton, self.fps, p.root_positions_m[run], p.local_rotations_wxyz[run], name=name)
 
@@ -186,15 +208,11 @@ def _stretches(frames: np.ndarray, reason: str) -> list[DroppedStretch]:
     return [DroppedStretch(int(r[0]), int(r[-1]), reason) for r in consecutive_runs(np.flatnonzero(frames))]
 
 
-def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVideoConfig(),
-               source: str = "video", camera_path=None) -> PersonFit:
-    """Find, place and fit the one person of a camera's frames (module docstring).
-
-    obs: the detector's results for every frame; fps: frames per second; source: names the input
-    in error messages. camera_path: a moving camera (``nsim.human.moving_camera.CameraPath``, one
-    pose per frame of ``obs``, NaN where SfM did not register it); None: a static camera.
-    Bad input raises a one-line ``InputError``.
-    """
+def person_frames(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVideoConfig(),
+                  source: str = "video") -> tuple[np.ndarray, np.ndarray]:
+    """The checks of step 1 (module docstring), which need the detector's results only: run before anything costly
+    (SfM). Returns ``(keep, crowded)``, ``(N,)`` bool each: the frames with the one person, and those with someone
+    else in view too. Bad input raises a one-line ``InputError`` naming ``source``."""
     if not (math.isfinite(fps) and fps > 0):
         raise InputError(f"{source}: frame rate must be > 0, got {fps!r}")
     N = obs.num_frames
@@ -211,6 +229,28 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
         raise InputError(f"{source}: more than one person in {int(crowded.sum())} of {int(found.sum())} frames "
                          f"(first at {first / fps:.1f} s): film one person at a time")
     keep = found & ~crowded
+    _check_in_view(keep.sum() / fps, duration, cfg, source)
+    return keep, crowded
+
+
+def _check_in_view(kept_s: float, duration: float, cfg: PersonVideoConfig, source: str) -> None:
+    if kept_s < cfg.min_duration_s:
+        raise InputError(f"{source}: the person is in view for only {kept_s:.1f} s of {duration:.1f} s (at least "
+                         f"{cfg.min_duration_s:g} s needed)")
+
+
+def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVideoConfig(),
+               source: str = "video", camera_path=None) -> PersonFit:
+    """Find, place and fit the one person of a camera's frames (module docstring).
+
+    obs: the detector's results for every frame; fps: frames per second; source: names the input
+    in error messages. camera_path: a moving camera (``nsim.human.moving_camera.CameraPath``, one
+    pose per frame of ``obs``, NaN where SfM did not place it); None: a static camera.
+    Bad input raises a one-line ``InputError``.
+    """
+    keep, crowded = person_frames(obs, fps, cfg, source)
+    N = obs.num_frames
+    found = np.asarray(obs.found, dtype=bool)
     relabelled: dict[str, list[int]] = {}
     if cfg.consistent_sides:
         obs, relabelled = consistent_sides(obs, keep)
@@ -218,18 +258,20 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     if cfg.track_outlier_torsos is not None:  # after the sides are consistent: a swap is not an outlier
         outliers = track_outliers(obs.image_uv_px, keep, cfg.track_outlier_torsos)
         obs = replace(obs, visibility=np.where(outliers, 0.0, obs.visibility))
+    steps = None
     try:
         if camera_path is None:
             camera = static_camera(obs.width, obs.height, cfg.hfov_deg)
             placed = place_landmarks(obs.body_m[keep], obs.image_uv_px[keep], obs.visibility[keep], camera,
                                      cfg.camera_height_m, cfg.body_height_m)
         else:
-            from nsim.human.moving_camera import place_landmarks_moving
-
             camera = camera_path.camera
+            steps = count_steps(np.where(keep[:, None, None], obs.body_m, np.nan), fps)
+            speed = (speed_from_cadence(steps.cadence_steps_s, cfg.body_height_m or REFERENCE_HEIGHT_M)
+                     if steps.walks else None)
             placed = place_landmarks_moving(obs.body_m[keep], obs.image_uv_px[keep], obs.visibility[keep], camera,
                                             np.asarray(camera_path.cam_to_world)[keep], camera_path.points_xyz,
-                                            cfg.camera_height_m, cfg.body_height_m, np.flatnonzero(keep) / fps)
+                                            cfg.camera_height_m, cfg.body_height_m, np.flatnonzero(keep) / fps, speed)
     except ValueError as err:
         raise InputError(f"{source}: cannot place the person in 3D ({err})") from None
     unplaced = np.zeros(N, dtype=bool)
@@ -237,10 +279,7 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
     keep &= ~unplaced
     dropped = sorted(_stretches(~found, NO_PERSON) + _stretches(crowded, CROWDED) + _stretches(unplaced, UNPLACED),
                      key=lambda d: d.first)
-    kept_s = keep.sum() / fps
-    if kept_s < cfg.min_duration_s:
-        raise InputError(f"{source}: the person is in view for only {kept_s:.1f} s of {duration:.1f} s (at least "
-                         f"{cfg.min_duration_s:g} s needed)")
+    _check_in_view(keep.sum() / fps, N / fps, cfg, source)
     rows = (placed.weights > 0).any(axis=1)  # rows of the kept-before-placing frames that were placed
     lm, w = placed.landmarks_m[rows], placed.weights[rows]
     frames = np.flatnonzero(keep)
@@ -256,7 +295,8 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
                       for f in frames])
     return PersonFit(frames, camera, cam_to_world, placed.camera_height_m, placed.scale, poses, masks,
                      tuple(dropped), float(fps), relabelled,
-                     tuple((int(f), LANDMARK_NAMES[k]) for f, k in np.argwhere(outliers)))
+                     tuple((int(f), LANDMARK_NAMES[k]) for f, k in np.argwhere(outliers)), placed.scale_from, steps)
 
 
-__all__ = ["CAMERA_MODES", "CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person"]
+__all__ = ["CAMERA_MODES", "CROWDED", "NO_PERSON", "UNPLACED", "DroppedStretch", "PersonFit", "PersonVideoConfig", "fit_person",
+           "person_frames"]

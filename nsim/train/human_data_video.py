@@ -7,17 +7,22 @@
 2. reads the frames (``read_person_frames``): every frame of a video, thinned to at most
    ``max_fps`` and shrunk to at most ``max_width`` pixels wide, or the images of a folder in
    name order at ``images_fps``;
-3. finds and fits the person (``nsim.human.person_video.fit_person``: masks, a metric camera,
-   static or moving (``nsim.human.moving_camera``: told by the background's motion, its path by
-   SfM with the person masked out), bone lengths and per-frame joint angles; bad input is a
-   one-line ``InputError``);
+3. checks what needs the detector only (``nsim.human.person_video.person_frames``: length, one
+   person), then tells a static camera from a moving one (``nsim.human.moving_camera.decide_camera``:
+   the background's motion, or the person walking on the spot in the image; one log line with the
+   numbers) and finds a moving camera's path (SfM on keyframes with the person masked out), then
+   finds and fits the person (``nsim.human.person_video.fit_person``: masks, a metric camera,
+   bone lengths and per-frame joint angles; bad input is a one-line ``InputError``) and logs the
+   walking speed in the world and where its metres came from;
 4. writes the human data format (docs/human_data.md) for the kept frames into ``out_dir``::
 
        transforms.json    the camera of each frame (the same pose throughout for a static one), intrinsics
        images/frame_NNNNN.png, masks/frame_NNNNN.png   NNNNN: the frame's index in the input
        poses.json         the fitted poses (nsim.human.data)
        person.bvh         the person's own motion (longest unbroken stretch), nsim.human.bvh
-       person_fit.json    camera height, scale, field of view, bone lengths, dropped stretches
+       person_fit.json    camera height, scale, field of view, bone lengths, dropped stretches; the
+                          camera decision and its numbers (camera_decision), a moving camera's SfM
+                          (camera_path), walking_speed_mps, scale_from, cadence_steps_s
 """
 
 from __future__ import annotations
@@ -31,7 +36,18 @@ from pathlib import Path
 import numpy as np
 
 from nsim.errors import InputError
-from nsim.human.person_video import PersonFit, PersonVideoConfig, fit_person
+from nsim.human.landmarks import MASK_THRESHOLD, consistent_sides
+from nsim.human.monocular import static_camera
+from nsim.human.moving_camera import (
+    WALK_CADENCE_STEPS_S,
+    CameraDecision,
+    CameraPath,
+    background_motion_px,
+    camera_path,
+    decide_camera,
+    speed_from_cadence,
+)
+from nsim.human.person_video import PersonFit, PersonVideoConfig, fit_person, person_frames
 
 log = logging.getLogger(__name__)
 
@@ -123,8 +139,11 @@ def read_person_frames(source: PersonSource) -> tuple[list[np.ndarray], np.ndarr
     return frames, np.asarray(index, dtype=np.int64), fps / every
 
 
-def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray, fit: PersonFit) -> dict:
-    """Write the human data folder of the kept frames (module docstring); returns person_fit.json's content."""
+def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray, fit: PersonFit,
+                      decision: CameraDecision | None = None, path: CameraPath | None = None) -> dict:
+    """Write the human data folder of the kept frames (module docstring); returns person_fit.json's content.
+
+    decision: how the camera was told static or moving, and path: a moving camera's SfM, both recorded in it."""
     from nsim.human.bvh import write_bvh
     from nsim.human.data import write_poses
     from nsim.io import atomic_write_text
@@ -156,6 +175,11 @@ def write_person_data(out_dir: Path, frames: list[np.ndarray], index: np.ndarray
         "dropped": [d.describe(fit.fps) for d in fit.dropped],
         "sides_relabelled": fit.relabelled,
         "track_outliers": [[f, name] for f, name in fit.track_outliers],
+        "walking_speed_mps": _number(fit.walking_speed_mps()),
+        "camera_decision": None if decision is None else decision.to_dict(),
+        "camera_path": None if path is None else path.summary(),
+        "scale_from": fit.scale_from or None,
+        "cadence_steps_s": None if fit.steps is None else _number(fit.steps.cadence_steps_s),
     }
     atomic_write_text(out_dir / PERSON_FIT_FILE, json.dumps(report, indent=1) + "\n")
     return report
@@ -183,16 +207,23 @@ def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None
     finally:
         for d in made:
             d.close()
+    src = str(source.path)
+    keep, _ = person_frames(obs, fps, cfg, source=src)  # checks that need the detector only, before SfM
+    masks = obs.person_masks >= MASK_THRESHOLD
+    motion = background_motion_px(frames, masks) if cfg.camera != "static" else None
+    sided = consistent_sides(obs, keep)[0] if cfg.consistent_sides else obs
+    decision = decide_camera(motion, obs.width, np.where(keep[:, None, None], sided.body_m, np.nan),
+                             sided.image_uv_px, np.where(keep[:, None], sided.visibility, 0.0),
+                             static_camera(obs.width, obs.height, cfg.hfov_deg), fps, cfg.camera)
+    log.info("%s: %s", src, decision.describe())
     moving = None
-    if cfg.camera != "static":
-        from nsim.human.landmarks import MASK_THRESHOLD
-        from nsim.human.moving_camera import background_motion_px, camera_moves, camera_path
-
-        masks = obs.person_masks >= MASK_THRESHOLD
-        if cfg.camera == "moving" or camera_moves(background_motion_px(frames, masks), obs.width):
-            log.info("%s: the camera moves; finding its path (SfM, the person masked out)", source.path)
-            moving = camera_path(frames, masks, cfg.hfov_deg)
-    fit = fit_person(obs, fps, cfg, source=str(source.path), camera_path=moving)
+    if decision.moving:
+        moving = camera_path(frames, masks, fps, cfg.hfov_deg, motion, source=src)
+        summary = moving.summary()
+        log.info("%s: the camera's path from %d of %d keyframes (SfM, the person masked out, %d points) in %.0f s",
+                 src, summary["keyframes_registered"], summary["keyframes"], summary["points"], moving.seconds)
+    fit = fit_person(obs, fps, cfg, source=src, camera_path=moving)
+    _log_speed(src, fit)
     for d in fit.dropped:
         log.warning("%s: dropped %s", source.path, d.describe(fit.fps))
     for limb, frames_relabelled in fit.relabelled.items():
@@ -203,7 +234,36 @@ def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None
         log.info("%s: %d landmarks off their tracks left out of the fit (%s)", source.path, len(fit.track_outliers),
                  ", ".join(f"frame {f} {name}" for f, name in fit.track_outliers[:8])
                  + (", ..." if len(fit.track_outliers) > 8 else ""))
-    return write_person_data(Path(out_dir), frames, index, fit)
+    return write_person_data(Path(out_dir), frames, index, fit, decision, moving)
+
+
+def _number(v: float) -> float | None:
+    return round(float(v), 4) if math.isfinite(v) else None
+
+
+def _log_speed(name: str, fit: PersonFit) -> None:
+    """One line with the person's walking speed and where its metres came from; a warning for a scale guessed from
+    the steps, and for a cadence no walk has (a slow-motion video)."""
+    run = fit.longest_run()
+    speed, seconds = fit.walking_speed_mps(), (len(run) - 1) / fit.fps
+    if fit.steps is None:
+        log.info("%s: walking speed %.2f m/s over %.1f s (static camera)", name, speed, seconds)
+        return
+    said = (f"{fit.steps.count} steps, {fit.steps.cadence_steps_s:.2f} a second, say "
+            f"{speed_from_cadence(fit.steps.cadence_steps_s, fit.poses.body.height_m):.2f} m/s"
+            if fit.steps.walks else "no steps seen")
+    if fit.scale_from == "steps":
+        log.warning("%s: walking speed %.2f m/s over %.1f s, from the person's steps (%s): the camera's path gave no "
+                    "scale (no floor among its points, and it moves too nearly on a straight line at constant speed)",
+                    name, speed, seconds, said)
+    else:
+        log.info("%s: walking speed %.2f m/s over %.1f s (moving camera, metres per SfM unit from the %s; %s)",
+                 name, speed, seconds, fit.scale_from, said)
+    lo, hi = WALK_CADENCE_STEPS_S
+    if fit.steps.walks and not lo <= fit.steps.cadence_steps_s <= hi:
+        log.warning("%s: the person takes %.2f steps a second, outside a walk's %g-%g: %s", name,
+                    fit.steps.cadence_steps_s, lo, hi, "a slow-motion video? Speeds are in the video's time"
+                    if fit.steps.cadence_steps_s < lo else "running, or a sped-up video?")
 
 
 __all__ = ["PERSON_BVH_FILE", "PERSON_FIT_FILE", "PersonSource", "prepare_person_data", "read_person_frames",

@@ -1,7 +1,8 @@
-"""A person filmed by a moving camera: the camera's motion is told from the background, the person is
-placed in SfM's camera path in metres (scale from SfM's floor, or from the root's smoothness without
-one), and fitted end to end (no MediaPipe, no SfM run: SfM's answer is the true path in another
-frame and scale)."""
+"""A person filmed by a moving camera: the camera's motion is told from the background or from the person
+walking on the spot in the image, the person is placed in SfM's camera path in metres (scale from SfM's
+floor, from the root's smoothness, or from the person's steps), and fitted end to end (no MediaPipe; SfM's
+answer is the true path in another frame and scale, except in the end-to-end test on a rendered
+following-camera capture, which runs SfM)."""
 
 from __future__ import annotations
 
@@ -10,16 +11,27 @@ import pytest
 
 from nsim.geometry.transforms import look_at
 from nsim.human.fit import mpjpe_m, reference_body
-from nsim.human.gait import walk_cycle
+from nsim.human.gait import cadence_steps_per_min, idle_cycle, walk_cycle
 from nsim.human.landmarks import LANDMARK_NAMES, Observations
 from nsim.human.monocular import static_camera
 from nsim.human.motion import LocomotionLoop
 from nsim.human.moving_camera import (
+    FOLLOWED_MAX_ADVANCE_M,
+    KEYFRAME_FPS,
+    MAX_INTERPOLATION_GAP_S,
+    MAX_PATH_SCALE_ERROR,
     CameraPath,
     background_motion_px,
     camera_moves,
+    count_steps,
+    decide_camera,
+    interpolate_path,
+    keyframes,
     metric_scale,
+    metric_scale_error,
     place_landmarks_moving,
+    speed_from_cadence,
+    walking_speed_mps,
 )
 from nsim.human.person_video import PersonVideoConfig, fit_person
 from nsim.human.skeleton import forward_kinematics
@@ -155,3 +167,139 @@ def test_camera_mode_is_checked():
     assert PersonVideoConfig(camera="static").camera == "static"
     with pytest.raises(ValueError, match="camera"):
         PersonVideoConfig(camera="handheld")
+
+
+def _filmed(seconds: float, camera: str, speed: float = 1.3, seed: int = 3):
+    """The reference body walking along +x at ``speed``, filmed by a camera 1.5 m up that stands still 4.5 m to the
+    side ("static") or keeps 4 m behind it on a straight line ("following"); what a detector reports, the true
+    cameras, joints and root path."""
+    rng = np.random.default_rng(seed)
+    loop = LocomotionLoop.from_clip(walk_cycle(speed, fps=FPS))
+    n = int(round(seconds * FPS))
+    root, quats = loop.sample(np.arange(n) / FPS)
+    root = root + (-1.5, 0.0, 0.0)
+    body = reference_body(1.75)
+    T = forward_kinematics(body.skeleton, quats, root)
+    lm_world = body.landmarks(T)
+    if camera == "static":
+        c2w = np.stack([look_at((0.3, -4.5, 1.5), (0.0, 0.0, 0.9))] * n)
+    else:
+        c2w = np.stack([look_at((r[0] - 4.0, 0.0, 1.5), (r[0], 0.0, 0.9)) for r in root])
+    w2c = np.linalg.inv(c2w)
+    lm = np.einsum("fij,flj->fli", w2c[:, :3, :3], lm_world) + w2c[:, None, :3, 3]
+    cam = static_camera(480, 360, 70.0)
+    uv = cam.project(lm)[0] + rng.normal(0.0, 1.0, (n, 33, 2))
+    body_m = lm - lm[:, HIPS].mean(axis=1, keepdims=True) + rng.normal(0.0, 0.01, lm.shape)
+    return body_m, uv, np.ones((n, 33)), cam, c2w, T[..., :3, 3], root
+
+
+def test_steps_are_counted_in_a_walk_and_not_in_a_stand():
+    for speed in (0.9, 1.3, 1.7):
+        body_m = _filmed(4.0, "static", speed)[0]
+        steps = count_steps(body_m, FPS)
+        assert steps.walks and steps.count >= 6, steps
+        assert steps.cadence_steps_s == pytest.approx(cadence_steps_per_min(speed) / 60.0, rel=0.08)
+    idle = LocomotionLoop.from_clip(idle_cycle())
+    root, quats = idle.sample(np.arange(60) / FPS)
+    body = reference_body(1.75)
+    lm = body.landmarks(forward_kinematics(body.skeleton, quats, root))
+    standing = count_steps(lm - lm[:, HIPS].mean(axis=1, keepdims=True), FPS)
+    assert not standing.walks, standing
+    assert count_steps(np.full((10, 33, 3), np.nan), FPS).count == 0
+
+
+def test_speed_from_cadence_inverts_nsims_stride():
+    for speed, height in ((0.8, 1.6), (1.3, 1.75), (1.8, 1.9)):
+        assert speed_from_cadence(cadence_steps_per_min(speed, height) / 60.0, height) == pytest.approx(speed)
+
+
+def test_a_camera_that_follows_a_walker_is_told_moving_by_the_person():
+    # a far background that hardly moves in the image: only the person tells the camera follows
+    quiet = np.full(59, 0.6)
+    body_m, uv, vis, cam, *_ = _filmed(4.0, "following")
+    d = decide_camera(quiet, 480, body_m, uv, vis, cam, FPS)
+    assert d.moving and d.by == "person" and d.advance_per_step_m < FOLLOWED_MAX_ADVANCE_M, d.describe()
+    assert d.to_dict()["background_px"] == pytest.approx(0.6) and d.to_dict()["steps"] == d.steps.count
+    assert "the camera follows the person" in d.describe() and "0.60 px" in d.describe()
+    # a static camera watching the walk go by: the person advances a step's length per step
+    body_m, uv, vis, cam, *_ = _filmed(4.0, "static")
+    d = decide_camera(np.full(59, 0.05), 480, body_m, uv, vis, cam, FPS)
+    assert not d.moving and d.by == "neither" and d.advance_per_step_m > 2 * FOLLOWED_MAX_ADVANCE_M, d.describe()
+    # the background alone says so when it moves; the option overrides either
+    assert decide_camera(np.full(59, 9.0), 480, body_m, uv, vis, cam, FPS).by == "background"
+    forced = decide_camera(None, 480, body_m, uv, vis, cam, FPS, mode="moving")
+    assert forced.moving and forced.by == "option" and forced.to_dict()["background_px"] is None
+
+
+def test_keyframes_and_the_poses_between_them():
+    keys = keyframes(31, 16.0)
+    assert keys[0] == 0 and keys[-1] == 30 and set(np.diff(keys)[:-1]) == {round(16.0 / KEYFRAME_FPS)}
+    fast = keyframes(31, 16.0, motion_px=np.full(30, 10.0), width=400)  # 20 px (5 % of 400) every other frame
+    assert set(np.diff(fast)) == {2}
+    rng = np.random.default_rng(4)
+    key_c2w = np.stack([look_at(rng.normal(size=3) + (0.0, -5.0, 0.0), (0.0, 0.0, 0.0)) for _ in keys])
+    key_c2w[2] = np.nan  # not registered: its neighbours (8 frames = 0.5 s apart) are interpolated across
+    c2w = interpolate_path(keys, key_c2w, 31, 16.0)
+    np.testing.assert_allclose(c2w[keys[[0, 1, 3]]], key_c2w[[0, 1, 3]], atol=1e-9)
+    mid = (keys[1] + keys[3]) // 2
+    np.testing.assert_allclose(c2w[mid, :3, 3], 0.5 * (key_c2w[1, :3, 3] + key_c2w[3, :3, 3]), atol=1e-9)
+    assert np.isfinite(c2w).all()
+    key_c2w[1:5] = np.nan  # a gap longer than MAX_INTERPOLATION_GAP_S: its frames are not placed
+    assert (keys[5] - keys[0]) / 16.0 > MAX_INTERPOLATION_GAP_S
+    c2w = interpolate_path(keys, key_c2w, 31, 16.0)
+    assert np.isnan(c2w[keys[0] + 1:keys[5]]).all() and np.isfinite(c2w[keys[5]:]).all()
+
+
+def test_a_camera_following_on_a_straight_line_takes_its_scale_from_the_steps():
+    body_m, uv, vis, cam, c2w, joints, root = _filmed(4.0, "following")
+    sfm = c2w.copy()
+    sfm[:, :3, 3] *= SFM_SCALE  # SfM's units; no floor among its points
+    time = np.arange(len(c2w)) / FPS
+    t_cam = np.einsum("fji,fj->fi", c2w[:, :3, :3], joints[:, 0] - c2w[:, :3, 3])  # the root in each camera
+    assert metric_scale_error(t_cam, sfm, time, metric_scale(t_cam, sfm, time)) > MAX_PATH_SCALE_ERROR
+    with pytest.raises(ValueError, match="no scale"):
+        place_landmarks_moving(body_m, uv, vis, cam, sfm, None, times=time)
+    placed = place_landmarks_moving(body_m, uv, vis, cam, sfm, None, times=time, steps_speed_mps=1.3)
+    assert placed.scale_from == "steps" and placed.scale == pytest.approx(1 / SFM_SCALE, rel=0.1)
+    world_root = placed.landmarks_m[:, HIPS].mean(axis=1)
+    assert walking_speed_mps(world_root, FPS) == pytest.approx(walking_speed_mps(root, FPS), rel=0.1)
+
+
+@pytest.mark.slow
+def test_a_following_actor_capture_is_told_moving_and_its_walking_speed_found(tmp_path):
+    """A rendered capture whose camera follows behind the walker: the real SfM on its video; the detector is
+    scripted from the capture's truth (landmarks with noise, its masks), so no MediaPipe."""
+    from nsim.human.data import HumanData
+    from nsim.human.landmarks import FrameObservation
+    from nsim.synth.actor_capture import ActorCaptureConfig, render_actor_capture
+    from nsim.train.human_data_video import PersonSource, prepare_person_data
+
+    cap = tmp_path / "capture"
+    render_actor_capture(cap, ActorCaptureConfig(width=320, height=240, n_frames=36, supersample=1, view_deg=180.0,
+                                                 orbit_deg_s=0.0), seed=0)
+    truth = HumanData.load(cap)
+    w2c = np.linalg.inv(truth.cam_to_world())
+    lm = reference_body(truth.poses.height_m).landmarks(truth.joint_transforms())
+    lm = np.einsum("fij,flj->fli", w2c[:, :3, :3], lm) + w2c[:, None, :3, 3]
+    uv = truth.camera().project(lm)[0]
+    rng = np.random.default_rng(5)
+
+    class Scripted:
+        k = 0
+
+        def __call__(self, rgb):
+            k, self.k = self.k, self.k + 1
+            body = lm[k] - lm[k, HIPS].mean(axis=0) + rng.normal(0.0, 0.01, (33, 3))
+            return FrameObservation(uv[k] + rng.normal(0.0, 0.5, (33, 2)), body, np.ones(33),
+                                    truth.mask(k).astype(np.float32))
+
+        def close(self):
+            pass
+
+    source = PersonSource(cap / "video.mp4", person=PersonVideoConfig(body_height_m=truth.poses.height_m))
+    report = prepare_person_data(source, tmp_path / "person", detector=Scripted())
+    assert report["camera"] == "moving" and report["camera_decision"]["by"] == "background"
+    assert report["camera_path"]["keyframes_registered"] >= 0.8 * report["camera_path"]["keyframes"]
+    true_speed = walking_speed_mps(truth.poses.root_to_world[:, :3, 3], report["fps"])
+    assert report["walking_speed_mps"] == pytest.approx(true_speed, rel=0.15), (report["walking_speed_mps"], true_speed)
+    assert report["scale_from"] in ("floor", "path", "steps")
