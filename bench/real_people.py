@@ -26,7 +26,13 @@ Needs the ``nsim[people]`` extra (MediaPipe) in the interpreter that runs it.
    ``HELD_OUT_STEPS`` unless a ``--set refine.held_out_steps=N`` says otherwise (0: no fit, and the two sets
    of keys agree); ``wall_seconds`` has the fits' times (``held_out_fit_fitted``, ``held_out_fit_truth``,
    included in the trainings'), ``held_out_fit`` how far they moved the held-out joints;
-5. with pose refinement on (``refine.lr > 0``: the bench sets ``REFINE_LR``, the ``default`` preset's, for both
+5. a second capture whose camera follows behind the walker (``--set actor_view_deg=180``: the person stays in
+   the middle of the image while walking on) through the same ``prepare_person_data``: the camera must be told
+   moving and its path found (SfM with the person masked out), and the person's walking speed in the world
+   (``walking_speed_mps`` in ``person_fit.json``) is scored against the capture's true speed, measured alike
+   (``nsim.human.moving_camera.walking_speed_mps``): ``speed_err_following`` is the relative error (goal <= 0.15),
+   with ``following`` holding the speeds, the decision, the path's SfM and its time;
+6. with pose refinement on (``refine.lr > 0``: the bench sets ``REFINE_LR``, the ``default`` preset's, for both
    presets unless ``--set refine.lr=...`` says otherwise), the refined poses
    (``poses_refined.json``) are scored as in 3: ``mpjpe_cm`` is then the refined skeleton's (the
    pipeline's final fit) and ``mpjpe_cm_landmark_fit`` the landmark fit's before it, with both over
@@ -49,7 +55,7 @@ PSNR in the box, its gap below the true poses' and render IoU), so how far the P
 weight (``FitConfig``; the earlier weights, before the sides were made consistent: ``--fit smooth_weight_image=0.5 --fit weight_3d=0.05``).
 Prints a table; the
 last line is a JSON object with keys ``mask_iou, mpjpe_cm, psnr_box, psnr_box_gt_poses, iou_render``,
-``psnr_box_given_poses, psnr_box_gt_poses_given_poses, iou_render_given_poses`` (and more).
+``psnr_box_given_poses, psnr_box_gt_poses_given_poses, iou_render_given_poses``, ``speed_err_following`` (and more).
 """
 
 from __future__ import annotations
@@ -141,6 +147,37 @@ def render_iou_true_masks(human_dir: Path, folder: Path, capture_dir: Path, give
         alpha = model.render(camera, c2w[row], poses[row])["alpha"]
         ious.append(mask_iou(alpha > 0.5, truth.mask(k)))
     return float(np.mean(ious))
+
+
+def following_speed(store: Store, ctx: RunContext, cap_over: list[str], person, tmp: Path) -> dict:
+    """Step 5: the capture with a camera that follows behind the walker, fitted from its video alone; the walking
+    speed found against the true one (both ``walking_speed_mps`` over the frames the fit kept in one run)."""
+    from nsim.human.data import HumanData
+    from nsim.human.moving_camera import walking_speed_mps
+    from nsim.train.human_data_video import PersonSource, prepare_person_data
+
+    t0 = time.perf_counter()
+    cfg = load_config(capture.Config, stage="capture", preset="default", overrides=[*cap_over, "actor_view_deg=180"])
+    cap = store.get(capture.run(capture.Inputs(), cfg, ctx).capture)
+    cap_s = time.perf_counter() - t0
+    truth = HumanData.load(cap.path)
+    person = dataclasses.replace(person, body_height_m=truth.poses.height_m)
+    t0 = time.perf_counter()
+    out = tmp / "person_following"
+    report = prepare_person_data(PersonSource(cap.path / "video.mp4", person=person), out)
+    fit_s = time.perf_counter() - t0
+    fitted = HumanData.load(out)
+    index = np.asarray([int(Path(p).stem.split("_")[-1]) for p in fitted.image_paths])
+    runs = np.split(index, np.flatnonzero(np.diff(index) != 1) + 1)
+    run = max(runs, key=len)  # the fit's walking_speed_mps is over its longest unbroken run
+    true_speed = walking_speed_mps(truth.poses.root_to_world[run, :3, 3], report["fps"])
+    speed = report["walking_speed_mps"]
+    err = abs(speed - true_speed) / true_speed if speed is not None else float("nan")
+    return {"speed_err": err, "speed_mps": speed, "true_speed_mps": true_speed, "camera": report["camera"],
+            "decision": report["camera_decision"], "camera_path": report["camera_path"],
+            "scale_from": report["scale_from"], "cadence_steps_s": report["cadence_steps_s"],
+            "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
+            "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s, 1)}}
 
 
 class _FitTimes(logging.Handler):
@@ -300,6 +337,12 @@ def main() -> None:
             frame.pop("background_path", None)
         (truth_dir / "transforms.json").write_text(json.dumps(transforms))
         print(f"person fit: {json.dumps(scores)}", flush=True)
+        following = following_speed(store, ctx, cap_over, person, tmp)
+        print(f"following camera: walking speed {following['speed_mps']} m/s against {following['true_speed_mps']:.3f} "
+              f"(relative error {following['speed_err']:.3f}; camera {following['camera']}, scale from "
+              f"{following['scale_from']}; fit {following['wall_seconds']['fit']} s)", flush=True)
+        follow_keys = {"speed_err_following": round(following["speed_err"], 4),
+                       "following": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in following.items()}}
         if args.fit_only:
             print(json.dumps({"quick": q, "fit_only": True, "mask_threshold": person.mask_threshold,
                               "min_visibility": person.fit.min_visibility, "fit": dataclasses.asdict(person.fit),
@@ -310,7 +353,7 @@ def main() -> None:
                               "camera": report["camera"],
                               "frames_kept": report["frames_kept"], "frames_in": report["frames_in"],
                               "mask_iou": round(scores["mask_iou"], 4), "mpjpe_cm": round(scores["mpjpe_cm"], 3),
-                              "psnr_box": None, "psnr_box_gt_poses": None, "iou_render": None,
+                              "psnr_box": None, "psnr_box_gt_poses": None, "iou_render": None, **follow_keys,
                               "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s_person, 1)}}))
             return
         cfg = load_config(train_human.Config, stage="train_human", preset="tiny" if q else "default",
@@ -411,6 +454,7 @@ def main() -> None:
                       "iou_render_gt_poses_true_masks_given_poses":
                           round(evals["truth"]["mask_iou_true_masks_given_poses"], 4),
                       "held_out_fit": {name: {k: round(v, 3) for k, v in moved.items()} for name, moved in fits.items()},
+                      **follow_keys,
                       **({"crossed": crossed} if crossed else {}),
                       **({"pose_blend": blend} if blend else {}),
                       "wall_seconds": {"capture": round(cap_s, 1), "fit": round(fit_s_person, 1),
