@@ -93,6 +93,12 @@ class HumanModelConfig:
     ``blend_voxel_m``, initialised from bone distances with ``blend_temperature_m`` and
     ``blend_background_m``. ``box_padding_m``: padding of the canonical and posed boxes around
     joints and end sites (None: 10 % of the body height).
+
+    Where to look: ``sample_bone_radius_m`` (None, as models made before it: the whole posed box) spreads a ray's
+    ``samples_per_ray`` over the part of it that passes within that distance of a posed bone (the hull of its
+    intersections with capsules of that radius around the bones, inside the posed box), not over the whole box:
+    the same samples land closer together where the body can be, and the field is empty beyond that distance
+    (a shape prior from the skeleton).
     """
 
     field: str = param("hash", choices=FIELD_TYPES)
@@ -119,6 +125,8 @@ class HumanModelConfig:
     nonrigid_max_offset_m: float = param(0.05, gt=0.0)
     samples_per_ray: int = param(48, ge=2, le=1024)
     min_ownership: float = param(1e-3, ge=0.0, lt=1.0, help="samples owned less than this by any bone are empty")
+    sample_bone_radius_m: float | None = param(
+        None, gt=0.0, help="samples only where a ray passes this close to a posed bone (null: the whole posed box)")
 
 
 # ====================================================================== geometry helpers
@@ -151,6 +159,47 @@ def point_segment_distance(x: Tensor, a: Tensor, b: Tensor) -> Tensor:
     u = (((x[:, None, :] - a) * ab).sum(-1) / denom).clamp(0.0, 1.0)
     closest = a + u[..., None] * ab
     return torch.linalg.vector_norm(x[:, None, :] - closest, dim=-1)
+
+
+def ray_capsule_interval(origins: Tensor, dirs: Tensor, a: Tensor, b: Tensor, radius: float) -> tuple[Tensor, Tensor]:
+    """Where rays ``origins, dirs (R, 3)`` (unit dirs) pass within ``radius`` of segments ``a, b (R, B, 3)``:
+    entry and exit ``t (R, B)`` (``+inf, -inf`` for a miss). A capsule is convex, so its interval is the hull of
+    the intervals of its two end spheres and of its cylinder (the infinite cylinder cut by the slab between the
+    ends)."""
+    inf = torch.full_like(a[..., 0], float("inf"))
+    o, d = origins[:, None, :], dirs[:, None, :]
+    r2 = radius * radius
+
+    def sphere(c: Tensor) -> tuple[Tensor, Tensor]:
+        oc = o - c
+        half_b = (oc * d).sum(-1)
+        disc = half_b * half_b - ((oc * oc).sum(-1) - r2)
+        root = torch.sqrt(disc.clamp(min=0.0))
+        return torch.where(disc >= 0, -half_b - root, inf), torch.where(disc >= 0, -half_b + root, -inf)
+
+    s0, s1 = sphere(a)
+    e0, e1 = sphere(b)
+    ab = b - a
+    length = torch.linalg.vector_norm(ab, dim=-1)
+    w = ab / length.clamp(min=1e-12)[..., None]
+    oa = o - a
+    dw, ow = (d * w).sum(-1), (oa * w).sum(-1)
+    d_perp, o_perp = d - dw[..., None] * w, oa - ow[..., None] * w
+    qa = (d_perp * d_perp).sum(-1)
+    qb = (o_perp * d_perp).sum(-1)
+    disc = qb * qb - qa * ((o_perp * o_perp).sum(-1) - r2)
+    root = torch.sqrt(disc.clamp(min=0.0))
+    ok = (disc >= 0) & (qa > 1e-12) & (length > 1e-9)
+    c0 = (-qb - root) / qa.clamp(min=1e-12)
+    c1 = (-qb + root) / qa.clamp(min=1e-12)
+    # the slab 0 <= (o + t d - a) . w <= length
+    safe = torch.where(dw.abs() > 1e-12, dw, torch.full_like(dw, 1e-12))
+    p0, p1 = -ow / safe, (length - ow) / safe
+    c0 = torch.maximum(c0, torch.minimum(p0, p1))
+    c1 = torch.minimum(c1, torch.maximum(p0, p1))
+    ok = ok & (c1 >= c0)
+    c0, c1 = torch.where(ok, c0, inf), torch.where(ok, c1, -inf)
+    return torch.minimum(torch.minimum(s0, e0), c0), torch.maximum(torch.maximum(s1, e1), c1)
 
 
 def bone_distances(x: Tensor, skeleton: Skeleton) -> Tensor:
@@ -307,6 +356,10 @@ class HumanModel(nn.Module):
         has_end = np.isfinite(skeleton.end_sites_m[:, 0])
         self.register_buffer("end_joints", torch.as_tensor(np.nonzero(has_end)[0]))
         self.register_buffer("end_sites", torch.as_tensor(skeleton.end_sites_m[has_end], dtype=torch.float32))
+        seg_a, seg_b, seg_joint = bone_segments(skeleton)  # rest-pose bones (derived: not in the state dict)
+        self.register_buffer("bone_start", torch.as_tensor(seg_a, dtype=torch.float32), persistent=False)
+        self.register_buffer("bone_end", torch.as_tensor(seg_b, dtype=torch.float32), persistent=False)
+        self.register_buffer("bone_joint", torch.as_tensor(seg_joint), persistent=False)
         # the blend-weight volume: (J, 1, Z, Y, X) log-weights on the vertices of a grid over the box
         extent = (hi - lo)
         res = [max(2, int(math.ceil(e / cfg.blend_voxel_m)) + 1) for e in extent]  # x, y, z vertices
@@ -336,6 +389,13 @@ class HumanModel(nn.Module):
         ends = Te[..., :3, 3] + torch.einsum("peij,ej->pei", Te[..., :3, :3], self.end_sites)
         pts = torch.cat([T[..., :3, 3], ends], dim=1)
         return torch.stack([pts.amin(1) - self.padding_m, pts.amax(1) + self.padding_m], dim=1)
+
+    def posed_bones(self, joint_transforms) -> tuple[Tensor, Tensor]:
+        """Every pose's bone segments (``bone_segments``), carried by their joints: starts, ends ``(P, B, 3)``."""
+        G = self.skinning(joint_transforms)[:, self.bone_joint]  # (P, B, 4, 4)
+        R, t = G[..., :3, :3], G[..., :3, 3]
+        return (torch.einsum("pbij,bj->pbi", R, self.bone_start) + t,
+                torch.einsum("pbij,bj->pbi", R, self.bone_end) + t)
 
     def skinning(self, joint_transforms) -> Tensor:
         """Canonical-to-posed transforms ``G_j = T_j R_j^-1``: ``(P, J, 4, 4)``."""
@@ -382,16 +442,22 @@ class HumanModel(nn.Module):
         by ``joint_transforms[pose_index]``: ``y (N, J, 3)``, log-weights ``log w^c_j(y_j) (N, J)``
         and the per-pose inverse rotations ``(P, J, 3, 3)``."""
         G_inv = torch.linalg.inv(self.skinning(joint_transforms))  # (P, J, 4, 4) posed -> canonical per joint
-        idx = self._index(x_p.shape[0], pose_index, x_p.device)
-        if G_inv.shape[0] == 1:
-            y = torch.einsum("jab,nb->nja", G_inv[0, :, :3, :3], x_p) + G_inv[0, :, :3, 3]
+        n, P, J = x_p.shape[0], G_inv.shape[0], G_inv.shape[1]
+        idx = self._index(n, pose_index, x_p.device)
+        # per pose, y = x_p M + t with M (3, J 3) = every joint's rotation side by side: one matrix product
+        M = G_inv[:, :, :3, :3].permute(0, 3, 1, 2).reshape(P, 3, J * 3)
+        t = G_inv[:, :, :3, 3].reshape(P, J * 3)
+        if P == 1:
+            y = torch.addmm(t[0], x_p, M[0])
         else:  # one product per pose over its points (cheaper than gathering a transform per point)
-            order = torch.argsort(idx, stable=True)
-            counts = torch.bincount(idx, minlength=G_inv.shape[0]).tolist()
-            parts = [torch.einsum("jab,nb->nja", G_inv[p, :, :3, :3], xs) + G_inv[p, :, :3, 3]
-                     for p, xs in enumerate(torch.split(x_p[order], counts)) if counts[p]]
-            y = torch.empty((x_p.shape[0], G_inv.shape[1], 3), dtype=x_p.dtype, device=x_p.device)
-            y = y.index_put((order,), torch.cat(parts))
+            ordered = n < 2 or bool((idx[1:] >= idx[:-1]).all())  # render_samples sorts its rays by pose
+            order = None if ordered else torch.argsort(idx, stable=True)
+            counts = torch.bincount(idx, minlength=P).tolist()
+            xs = x_p if order is None else x_p[order]
+            y = torch.cat([torch.addmm(t[p], part, M[p]) for p, part in enumerate(torch.split(xs, counts)) if counts[p]])
+            if order is not None:
+                y = torch.empty_like(y).index_put((order,), y)
+        y = y.view(n, J, 3)
         return y, self.blend_log_weights_at(y), G_inv[..., :3, :3]
 
     def warp(self, x_p: Tensor, joint_transforms, pose_index: Tensor | None = None) -> Warp:
@@ -460,7 +526,8 @@ class HumanModel(nn.Module):
 
         ``joint_transforms``: the pose ``(J, 4, 4)``, or several ``(P, J, 4, 4)`` with each
         ray's in ``pose_index (R,)`` (training batches many frames in one call).
-        ``samples_per_ray`` intervals split the part of ``[near, far]`` inside the posed box
+        ``samples_per_ray`` intervals split the part of ``[near, far]`` inside the posed box (with
+        ``sample_bone_radius_m``: and within that distance of a posed bone, ``ray_capsule_interval``)
         evenly; with ``generator`` each sample's point is jittered inside its interval
         (training), else taken at its middle. Rays that miss the box get empty intervals at
         ``near`` (``t_starts == t_ends``, density 0). Returns ``RaySamples`` ``(R, S)``.
@@ -478,6 +545,10 @@ class HumanModel(nn.Module):
         inv = 1.0 / torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
         ta, tb = (boxes[:, 0] - origins) * inv, (boxes[:, 1] - origins) * inv
         t_in, t_out = torch.minimum(ta, tb).amax(-1), torch.maximum(ta, tb).amin(-1)
+        if self.cfg.sample_bone_radius_m is not None:  # where the ray passes near a bone (model config)
+            a, b = self.posed_bones(T.detach())
+            c0, c1 = ray_capsule_interval(origins, dirs, a[idx], b[idx], self.cfg.sample_bone_radius_m)
+            t_in, t_out = torch.maximum(t_in, c0.amin(-1)), torch.minimum(t_out, c1.amax(-1))
         near_t = torch.as_tensor(near, dtype=origins.dtype, device=dev).expand(n)
         far_t = torch.as_tensor(far, dtype=origins.dtype, device=dev).expand(n)
         t_in, t_out = torch.maximum(t_in, near_t), torch.minimum(t_out, far_t)
@@ -503,6 +574,8 @@ class HumanModel(nn.Module):
                 rgb[sl] = torch.where(hit[sl, None, None], c.view(-1, S, 3), 0.0)
             return RaySamples(t0, t1, sigma, rgb)
         rows = torch.nonzero(hit)[:, 0]
+        if idx.numel() and bool((idx != idx[0]).any()):  # grouped by pose: the warp's one product per pose
+            rows = rows[torch.argsort(idx[rows], stable=True)]
         if rows.numel():
             x = origins[rows, None, :] + dirs[rows, None, :] * t_mid[rows, :, None]
             s, c, _ = self.query(x.reshape(-1, 3), T, idx[rows].repeat_interleave(S))
@@ -666,6 +739,7 @@ __all__ = [
     "orbit_cameras",
     "point_segment_distance",
     "positional_encoding",
+    "ray_capsule_interval",
     "render_merged",
     "save_human_model",
     "skeleton_from_dict",

@@ -65,6 +65,16 @@ from nsim.errors import InputError
 from nsim.geometry.cameras import dirs_to_world
 from nsim.human.nerf import HumanModel, HumanModelConfig, render_merged
 from nsim.human.refine import BodyPoseRefinement, pose_change
+from nsim.human.shape_prior import (
+    bone_frames,
+    cameras_in_canonical,
+    mirror_left_right,
+    nearest_bone,
+    outward,
+    sample_near_bones,
+    seen_fraction,
+    turn_cross_section,
+)
 from nsim.human.skeleton import Skeleton, pose_aabb
 from nsim.io import atomic_path
 from nsim.metrics.image import psnr
@@ -100,10 +110,34 @@ class HumanOptimConfig:
 @dataclass(frozen=True)
 class HumanLossConfig:
     """Loss weights: ``mask_weight`` (opacity vs mask, MSE), ``blend_weight`` (keeps the learned
-    skinning log-weights near their bone-distance initialisation, mean squared difference)."""
+    skinning log-weights near their bone-distance initialisation, mean squared difference).
+
+    The canonical body's priors where the video never looked (``nsim.human.shape_prior``; each 0: off), on
+    ``prior_points`` canonical points a step drawn within ``prior_radius_m`` of the bones, their density taken as
+    the opacity of a ``prior_step_m`` step (``1 - exp(-sigma step)``): ``cross_section_weight`` (the opacity
+    unchanged by a turn about the point's bone in its cross-section, the trunk's ``trunk_aspect`` deep as wide;
+    mean squared difference), ``symmetry_weight`` and ``symmetry_colour_weight`` (opacity and, weighted by it,
+    colour unchanged by the left/right mirror), ``unseen_colour_weight`` (the colour of points that faced no training
+    camera pulled towards the mean colour of their bone where seen, weighted by their opacity)."""
 
     mask_weight: float = param(0.5, ge=0.0)
     blend_weight: float = param(1e-3, ge=0.0)
+    cross_section_weight: float = param(0.0, ge=0.0, help="cross-sections turned about their bone (shape prior)")
+    trunk_aspect: float = param(0.65, gt=0.0, le=2.0, help="the trunk's depth / width (cross_section_weight)")
+    symmetry_weight: float = param(0.0, ge=0.0, help="left/right mirror symmetry of the opacity")
+    symmetry_colour_weight: float = param(0.0, ge=0.0, help="left/right mirror symmetry of the colour")
+    unseen_colour_weight: float = param(0.0, ge=0.0, help="unseen colour pulled to its bone's seen colour")
+    prior_points: int = param(2048, ge=1, help="canonical points a step for the priors above")
+    prior_radius_m: float = param(0.2, gt=0.0, help="the priors' points lie this close to a bone")
+    prior_step_m: float = param(0.02, gt=0.0, help="opacity of density sigma: 1 - exp(-sigma prior_step_m)")
+    seen_min_fraction: float = param(0.02, ge=0.0, lt=1.0,
+                                     help="a point is unseen when it faced fewer of the training cameras")
+
+    @property
+    def priors(self) -> bool:
+        """Whether any canonical prior is on."""
+        return (self.cross_section_weight > 0 or self.symmetry_weight > 0 or self.symmetry_colour_weight > 0
+                or self.unseen_colour_weight > 0)
 
 
 @dataclass(frozen=True)
@@ -320,6 +354,12 @@ class HumanTrainer(ResumableTrainer):
         elif data.background is not None:
             self.bg_images = torch.as_tensor(data.background).to(self.device)
         self._build_pools()
+        self.bones = bone_frames(data.skeleton, cfg.loss.trunk_aspect) if cfg.loss.priors else None
+        self.cameras_c = None
+        if cfg.loss.unseen_colour_weight > 0:
+            ids = torch.as_tensor(self.train_ids, device=self.device)
+            self.cameras_c = cameras_in_canonical(self.joint_transforms[ids], self.model.rest_transforms,
+                                                  self.cam_to_world[ids])
         o = cfg.optim
         f = self.model.field
         encoding = list(f.encoding.parameters()) if f.encoding is not None else []
@@ -463,6 +503,10 @@ class HumanTrainer(ResumableTrainer):
             reg = torch.mean((self.model.blend_log_weights - self.blend_init) ** 2)
             loss = loss + cfg.loss.blend_weight * reg
             extra["blend"] = float(reg.detach())
+        if self.bones is not None:
+            prior, terms = self.prior_loss(step)
+            loss = loss + prior
+            extra.update(terms)
         if self.refining():
             r = cfg.refine
             reg = self.refine.regulariser(r.rotation_weight, r.translation_weight, r.smooth_weight)
@@ -472,6 +516,49 @@ class HumanTrainer(ResumableTrainer):
         loss.backward()
         self.optimizer.step()
         return self._finish_step(t0, loss, mse, extra)
+
+    def prior_loss(self, step: int) -> tuple[Tensor, dict[str, float]]:
+        """The canonical priors' weighted sum at ``step`` (``HumanLossConfig``, ``nsim.human.shape_prior``) and each
+        term unweighted. Its points are drawn by a generator seeded with ``(seed, step)``."""
+        c = self.cfg.loss
+        bones = self.bones
+        g = torch.Generator().manual_seed(_step_seed(self.seed, step, "prior"))
+        pts, bone = sample_near_bones(bones, c.prior_points, c.prior_radius_m, g)
+        n = pts.shape[0]
+        sets = [pts]
+        if c.cross_section_weight > 0:
+            sets.append(turn_cross_section(pts, bone, bones, 2.0 * torch.pi * torch.rand(n, generator=g)))
+        if c.symmetry_weight > 0 or c.symmetry_colour_weight > 0:
+            sets.append(mirror_left_right(pts, self.data.skeleton))
+        sigma, rgb = self.model.field(torch.cat(sets).to(self.device))
+        alpha = 1.0 - torch.exp(-sigma * c.prior_step_m)
+        a0, c0 = alpha[:n], rgb[:n]
+        bone = bone.to(self.device)
+        loss, terms, k = sigma.new_zeros(()), {}, 1
+        if c.cross_section_weight > 0:
+            turned = sets[k].to(self.device)
+            same = (nearest_bone(pts.to(self.device), bones)[0] == bone) & (nearest_bone(turned, bones)[0] == bone)
+            w = bones.weight.to(self.device)[bone] * same
+            term = (w * (a0 - alpha[k * n:(k + 1) * n]) ** 2).sum() / w.sum().clamp(min=1e-6)
+            loss, terms["cross_section"], k = loss + c.cross_section_weight * term, float(term.detach()), k + 1
+        if c.symmetry_weight > 0 or c.symmetry_colour_weight > 0:
+            am, cm = alpha[k * n:(k + 1) * n], rgb[k * n:(k + 1) * n]
+            term = torch.mean((a0 - am) ** 2)
+            colour = torch.mean((a0 * am).detach()[:, None] * (c0 - cm) ** 2)
+            loss = loss + c.symmetry_weight * term + c.symmetry_colour_weight * colour
+            terms.update(symmetry=float(term.detach()), symmetry_colour=float(colour.detach()))
+        if c.unseen_colour_weight > 0:
+            p = pts.to(self.device)
+            seen = seen_fraction(p, outward(p, bone, bones), bones.joint.to(self.device)[bone], self.cameras_c)
+            w_seen = a0.detach() * (seen >= c.seen_min_fraction)
+            nb = bones.start.shape[0]
+            total = torch.zeros(nb, device=self.device).index_add(0, bone, w_seen)
+            mean = torch.zeros(nb, 3, device=self.device).index_add(0, bone, w_seen[:, None] * c0.detach())
+            mean = mean / total.clamp(min=1e-6)[:, None]
+            w = a0.detach() * (seen < c.seen_min_fraction) * (total[bone] > 1e-3)
+            term = (w[:, None] * (c0 - mean[bone]) ** 2).sum() / w.sum().clamp(min=1e-6)
+            loss, terms["unseen_colour"] = loss + c.unseen_colour_weight * term, float(term.detach())
+        return loss, terms
 
     def image_loss(self, out, frames: Tensor, v: Tensor, u: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """``(loss, mse, mask_loss)`` of a render ``out`` (``render_rays``) of pixels ``(frames, v, u)``: the

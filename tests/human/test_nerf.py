@@ -17,6 +17,8 @@ from nsim.human.nerf import (
     empty_samples,
     load_human_model,
     merge_samples,
+    point_segment_distance,
+    ray_capsule_interval,
     render_merged,
     save_human_model,
 )
@@ -172,6 +174,74 @@ def test_render_samples_without_the_box_test_queries_every_ray_and_gives_the_sam
     assert float(culled.sigma[:6].max()) > 0 and bool((culled.sigma[6:] == 0).all())
     for f in ("t_starts", "t_ends", "sigma", "rgb"):
         assert torch.equal(getattr(culled, f), getattr(every, f)), f
+
+
+def test_ray_capsule_interval_matches_marching_along_the_ray():
+    """Entry and exit of rays into capsules (zero-length ones: spheres) against the points of a fine march that
+    lie within the radius; a ray that passes further off misses (``t0 > t1``)."""
+    g = torch.Generator().manual_seed(0)
+    R, B, radius = 60, 4, 0.3
+    o = torch.randn(R, 3, generator=g) * 2.0
+    a = torch.randn(R, B, 3, generator=g) * 0.5
+    b = a + torch.randn(R, B, 3, generator=g) * 0.4
+    b[:, 0] = a[:, 0]
+    d = a[:, 1] + 0.4 * torch.randn(R, 3, generator=g) - o  # towards the segments: many hit, some miss
+    d = d / d.norm(dim=-1, keepdim=True)
+    t0, t1 = ray_capsule_interval(o, d, a, b, radius)
+    ts = torch.linspace(-8.0, 8.0, 8001)
+    hits = 0
+    for r in range(R):
+        pts = o[r] + d[r] * ts[:, None]
+        for k in range(B):
+            inside = point_segment_distance(pts, a[r, k:k + 1], b[r, k:k + 1])[:, 0] <= radius
+            if inside.any():
+                hits += 1
+                assert abs(float(ts[inside].min() - t0[r, k])) < 3e-3 and abs(float(ts[inside].max() - t1[r, k])) < 3e-3
+            else:
+                assert float(t1[r, k] - t0[r, k]) < 3e-3
+    assert hits > 20
+
+
+def test_samples_near_the_bones_only(skeleton, walk_poses):
+    """With ``sample_bone_radius_m`` every sample lies within that distance of a posed bone (and inside the box);
+    the ray's samples are denser than over the whole box; a ray through the box that passes no bone that close
+    is empty."""
+    cfg = HumanModelConfig(**{**SMALL.__dict__, "sample_bone_radius_m": 0.15})
+    near, whole = model(cfg, skeleton), model(skeleton=skeleton)
+    T = walk_poses[1]
+    o, d = _rays_through_body(near, T, 8)
+    a, b = near.posed_bones(T)
+    box = near.posed_box(T)[0]
+    corner = box[1] - 0.005  # inside the box, more than the padding less 5 mm from every bone
+    o = torch.cat([o, corner[None] + torch.tensor([[3.0, 0.0, 0.0]])])
+    d = torch.cat([d, torch.tensor([[-1.0, 0.0, 0.0]])])
+    with torch.no_grad():
+        s = near.render_samples(o, d, T, near=0.0, far=100.0)
+        w = whole.render_samples(o, d, T, near=0.0, far=100.0)
+    mid = 0.5 * (s.t_starts + s.t_ends)
+    pts = o[:8, None] + d[:8, None] * mid[:8, :, None]
+    dist = point_segment_distance(pts.reshape(-1, 3), a[0], b[0]).amin(-1)
+    assert float(dist.max()) <= 0.15 + 1e-4
+    assert bool(((pts >= box[0] - 1e-4) & (pts <= box[1] + 1e-4)).all())
+    assert bool(((s.t_ends - s.t_starts)[:8] < (w.t_ends - w.t_starts)[:8]).all())
+    assert bool((s.t_ends[8] == s.t_starts[8]).all()) and bool((w.t_ends[8] > w.t_starts[8]).all())
+
+
+def test_a_model_saved_before_the_bone_sampling_loads_as_it_was(skeleton, walk_poses, tmp_path):
+    """``human.json`` of a model written before ``sample_bone_radius_m`` existed (no such key) loads with it off:
+    the same samples as before."""
+    import json
+
+    m = model(skeleton=skeleton)
+    save_human_model(tmp_path, m)
+    meta = json.loads((tmp_path / "human.json").read_text())
+    del meta["model"]["sample_bone_radius_m"]
+    (tmp_path / "human.json").write_text(json.dumps(meta))
+    back = load_human_model(tmp_path)
+    assert back.cfg.sample_bone_radius_m is None
+    o, d = _rays_through_body(m, walk_poses[0], 4)
+    with torch.no_grad():
+        torch.testing.assert_close(back.render_samples(o, d, walk_poses[0]).sigma, m.render_samples(o, d, walk_poses[0]).sigma)
 
 
 def test_render_samples_respects_near_far(skeleton, walk_poses):
