@@ -12,9 +12,10 @@ Conventions:
   (``smpte170m``, ``tv``), so players and OpenCV's reader convert back with the same matrix;
 - quality: x264 ``preset`` :data:`PRESET`, constant quality ``crf`` :data:`CRF` (visually lossless
   for these synthetic frames), ``+faststart`` (the index first, so a browser starts playing at once);
-- the file's bytes depend only on the frames, the frame rate and the ffmpeg build: one encoder
-  thread (x264's output depends on its thread count), bit-exact muxing (no creation time, no
-  library version tag);
+- the file's bytes depend only on the frames, the frame rate and the ffmpeg build, not on the CPU: one
+  encoder thread (x264's output depends on its thread count), the RGB to YUV conversion in swscale's
+  bit-exact C code (:data:`SWS_FLAGS`: its SIMD code for the CPU at hand rounds otherwise, so an AVX-512
+  machine wrote other bytes than an AVX2 one), bit-exact muxing (no creation time, no library version tag);
 - written atomically (``nsim.io.atomic_path``): a failed or interrupted write leaves no file.
 
 :func:`probe_video` reads a video's codec, size, frame rate and frame count back (any format ffmpeg reads).
@@ -40,6 +41,8 @@ CODEC = "h264"
 """The codec of every MP4 nsim writes, as ffmpeg names it."""
 PRESET = "medium"
 CRF = 18
+SWS_FLAGS = "+accurate_rnd+bitexact+full_chroma_int"
+"""swscale's flags for the RGB to YUV conversion: the same bytes on every CPU (``-cpuflags 0``'s, tested)."""
 
 
 def ffmpeg_exe() -> str:
@@ -69,6 +72,7 @@ def encode_command(width: int, height: int, fps: float, out: str | os.PathLike) 
         "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}", "-framerate", f"{rate.numerator}/{rate.denominator}",
         "-i", "pipe:0",
         "-an", "-map_metadata", "-1",
+        "-sws_flags", SWS_FLAGS,
         "-c:v", "libx264", "-preset", PRESET, "-crf", str(CRF), "-threads", "1",
         "-pix_fmt", "yuv420p", "-colorspace", "smpte170m", "-color_range", "tv",
         "-flags:v", "+bitexact", "-fflags", "+bitexact", "-movflags", "+faststart",

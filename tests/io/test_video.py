@@ -67,6 +67,26 @@ def test_same_frames_same_bytes(tmp_path):
     assert a == b and a[4:8] == b"ftyp"
 
 
+def test_same_bytes_on_any_cpu(tmp_path):
+    """The bytes do not depend on the CPU's SIMD: nsim's command gives what ffmpeg with every CPU feature off
+    (``-cpuflags 0``, its plain C code) gives. Without ``SWS_FLAGS`` an AVX-512 machine wrote other bytes (swscale's
+    SIMD RGB to YUV conversion rounds otherwise), so the tiny demo's artifact ids differed between machines."""
+    import subprocess
+
+    from nsim.io.video import encode_command
+
+    rng = np.random.default_rng(0)
+    frames = (rng.random((6, 120, 160, 3)) * 255).astype(np.uint8)
+    frames[:, :60] = np.linspace(0, 255, 160).astype(np.uint8)[None, None, :, None]
+    raw = frames.tobytes()
+    out = []
+    for extra in ([], ["-cpuflags", "0"]):
+        cmd = encode_command(160, 120, 10.0, tmp_path / f"v{len(extra)}.mp4")
+        subprocess.run([cmd[0], *extra, *cmd[1:]], input=raw, check=True, capture_output=True)
+        out.append((tmp_path / f"v{len(extra)}.mp4").read_bytes())
+    assert out[0] == out[1] and len(out[0]) > 1000
+
+
 def test_streamed_writer(tmp_path):
     with open_mp4(tmp_path / "s.mp4", fps=2.5) as video:
         for f in _frames(4, 16, 24):
