@@ -52,8 +52,9 @@ from nsim.synth.phone import PhoneConfig
 from nsim.synth.room import ROOM_PRESETS
 
 STAGE = "capture"
-VERSION = 3  # 2: video.mp4 in H.264 (was MPEG-4 Part 2); preview.png with labelled frames
+VERSION = 4  # 2: video.mp4 in H.264 (was MPEG-4 Part 2); preview.png with labelled frames
 # 3: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
+# 4: video.mp4's YUV conversion bit-exact (nsim.io.video.SWS_FLAGS: the same bytes on any CPU)
 CAMERAS = ("pinhole", "fisheye")
 
 

@@ -57,12 +57,13 @@ from nsim.rendering.render_plan import RenderConfig
 from nsim.stages.runner import cached, device_kind, rerun
 
 STAGE = "render"
-VERSION = 6  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
+VERSION = 7  # 2: people culled by the sensor range; no person on invalid (outside the fisheye circle) rays
 # 3: ``fill`` (no-return pixels over the training images' mean colour) and ``background``
 # 4: preview/preview.mp4 in H.264 (was MPEG-4 Part 2); contact sheet tiles labelled (nsim.io.labels)
 # 5: the culling tests a pixel by its centre in the bound's own coordinates (whole numbers; it took u + 0.5,
 #    so a person could lose the column or row at the bound's right or bottom edge)
 # 6: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
+# 7: preview.mp4 the same bytes on any CPU (nsim.io.video.SWS_FLAGS); people drawn by default (default look)
 
 log = logging.getLogger(__name__)
 

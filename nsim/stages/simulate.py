@@ -73,7 +73,8 @@ from nsim.stages.runner import cached, device_kind, rerun
 from nsim.train.human_data_video import PERSON_BVH_FILE
 
 STAGE = "simulate"
-VERSION = 5  # 2: H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded; 5: gait phase by each clip
+VERSION = 5  # 2: H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded; 5: gait phase by each clip; run.mp4 the same
+#   bytes on any CPU (nsim.io.video.SWS_FLAGS)
 
 @dataclasses.dataclass(frozen=True)
 class Config:
