@@ -26,8 +26,9 @@ from nsim.commands.common import report_artifact, resolve_config, run_context, s
 @click.option("--person-height", "person_height_m", type=click.FloatRange(0.5, 2.5), default=None,
               help="--video/--images: the person's height in metres (sets the scale instead).")
 @click.option("--camera", "camera_mode", type=click.Choice(["auto", "static", "moving"]), default="auto",
-              show_default=True, help="--video/--images: the camera; auto: moving when the background moves "
-                                      "(its path by SfM with the person masked out).")
+              show_default=True, help="--video/--images: the camera; auto: moving when the background moves or "
+                                      "the person walks on the spot in the image (a camera following them); its "
+                                      "path by SfM with the person masked out.")
 @click.option("--fps", "images_fps", type=click.FloatRange(0.1, 240.0, min_open=False), default=30.0,
               show_default=True, help="--images: the frames' rate.")
 @click.option("--mask-threshold", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True), default=None,

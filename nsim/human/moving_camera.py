@@ -65,7 +65,7 @@ from nsim.errors import InputError
 from nsim.geometry.cameras import Camera
 from nsim.human.gait_phase import MIN_SPEED_MPS, STEP_COEFF_M
 from nsim.human.landmarks import LANDMARK_NAMES
-from nsim.human.monocular import Placement, floor_frame, root_translations
+from nsim.human.monocular import Placement, floor_frame, root_translations, static_camera
 from nsim.human.skeleton import REFERENCE_HEIGHT_M, SOLE_HEIGHT_M
 
 log = logging.getLogger(__name__)
@@ -108,7 +108,12 @@ SFM_OVERLAP = 5
 """SfM on the keyframes: SIFT features per image; sequential matching against this many next keyframes."""
 
 MIN_REGISTERED_FRACTION = 0.5
-"""SfM must place at least this share of the keyframes, else the path is refused in one line."""
+"""SfM must place at least this share of the keyframes, else the camera's turns are taken from the background's image
+motion instead (``rotation_path``) ..."""
+
+SFM_MIN_POINTS = 50
+"""... and keep at least this many sparse points (a model without them is degenerate: on a real tracking shot 19 of 24
+keyframes came back "registered" with no point left after bundle adjustment lost its gauge)."""
 
 MAX_PATH_SCALE_ERROR = 0.1
 """The path's scale (``metric_scale``) is used only when its relative standard error (``metric_scale_error``) is below
@@ -120,11 +125,14 @@ FB_MAX_PX = 1.0
 PATCH_MAX_DIFF = 15.0
 """... and its 21 x 21 patch differs from where it landed by less than this mean absolute grey level (0-255)."""
 
-SCALE_SOURCES = ("floor", "path", "steps")
-"""``Placement.scale_from`` of a moving camera: where its metres per SfM unit came from (module docstring, step 3)."""
+SCALE_SOURCES = ("floor", "path", "steps", "standing")
+"""``Placement.scale_from`` of a moving camera: where its metres per SfM unit came from (module docstring, step 3);
+"standing": a camera only turning (``CameraPath.model`` "rotation"), the metres the detector's."""
 
 _FEET = [LANDMARK_NAMES.index(n) for n in ("left_heel", "right_heel", "left_foot_index", "right_foot_index")]
 _ANKLES = [LANDMARK_NAMES.index("left_ankle"), LANDMARK_NAMES.index("right_ankle")]
+_HIPS = [LANDMARK_NAMES.index("left_hip"), LANDMARK_NAMES.index("right_hip")]
+_SHOULDERS = [LANDMARK_NAMES.index("left_shoulder"), LANDMARK_NAMES.index("right_shoulder")]
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,7 +143,9 @@ class CameraPath:
     gap longer than ``MAX_INTERPOLATION_GAP_S``). camera: the shared intrinsics.
     points_xyz: (P, 3) SfM's sparse points of the background.
     keyframes: (K,) the frames SfM saw; registered: (K,) bool, those it placed (None: every frame, all registered).
-    seconds: SfM's wall time.
+    seconds: the wall time. model: "sfm" (SfM's world, arbitrary scale), or "rotation" when SfM placed too few
+    keyframes: the camera's turns from the background's image motion (``rotation_path``), every centre at the
+    origin, its travel left to the person (``place_landmarks_moving``).
     """
 
     cam_to_world: np.ndarray
@@ -144,13 +154,14 @@ class CameraPath:
     keyframes: np.ndarray | None = None
     registered: np.ndarray | None = None
     seconds: float = float("nan")
+    model: str = "sfm"
 
     def summary(self) -> dict[str, Any]:
         """What ``person_fit.json`` records of the path."""
         n = self.cam_to_world.shape[0]
         keys = np.arange(n) if self.keyframes is None else self.keyframes
         reg = np.ones(len(keys), bool) if self.registered is None else self.registered
-        return {"keyframes": int(len(keys)), "keyframes_registered": int(reg.sum()),
+        return {"model": self.model, "keyframes": int(len(keys)), "keyframes_registered": int(reg.sum()),
                 "frames_placed": int(np.isfinite(self.cam_to_world).all(axis=(1, 2)).sum()),
                 "points": int(len(self.points_xyz)), "hfov_deg": float(self.camera.fov_deg[0]),
                 "seconds": round(float(self.seconds), 1)}
@@ -164,23 +175,15 @@ def _dilated(mask: np.ndarray, width: int) -> np.ndarray:
     return cv2.dilate(np.asarray(mask, dtype=np.uint8), kernel) > 0
 
 
-def background_motion_px(frames: list[np.ndarray], person_masks: np.ndarray, max_corners: int = 400) -> np.ndarray:
-    """Median background displacement (pixels) from each frame to the next, ``(N - 1,)``.
-
-    frames: N ``(H, W, 3)`` uint8 RGB. person_masks: (N, H, W) bool, left out (dilated). A corner
-    counts when tracking it forward and back lands within ``FB_MAX_PX`` of where it started and its
-    patch matches (``PATCH_MAX_DIFF``); NaN for
-    a pair with fewer than 8 such corners (frames that share no background: no evidence either way).
-    """
+def _background_tracks(frames: list[np.ndarray], person_masks: np.ndarray, max_corners: int = 400):
+    """Yields ``(i, from_px (K, 2), to_px (K, 2))``: background corners tracked from frame ``i`` to ``i + 1`` that
+    tracked back within ``FB_MAX_PX`` with matching patches (``PATCH_MAX_DIFF``); pairs with fewer than 8 are
+    skipped."""
     import cv2
 
-    n = len(frames)
-    out = np.full(max(n - 1, 0), np.nan)
-    if n < 2:
-        return out
     grey = [cv2.cvtColor(np.asarray(f, dtype=np.uint8), cv2.COLOR_RGB2GRAY) for f in frames]
-    w = grey[0].shape[1]
-    for i in range(n - 1):
+    w = grey[0].shape[1] if grey else 0
+    for i in range(len(frames) - 1):
         allowed = (~_dilated(person_masks[i], w)).astype(np.uint8) * 255
         pts = cv2.goodFeaturesToTrack(grey[i], max_corners, 0.01, max(3.0, 0.01 * w), mask=allowed)
         if pts is None or len(pts) < 8:
@@ -190,10 +193,58 @@ def background_motion_px(frames: list[np.ndarray], person_masks: np.ndarray, max
                                                         maxLevel=3)
         fb = np.linalg.norm((back - pts).reshape(-1, 2), axis=1)
         ok = (status.ravel() == 1) & (status_back.ravel() == 1) & (fb < FB_MAX_PX) & (err.ravel() < PATCH_MAX_DIFF)
-        if ok.sum() < 8:
-            continue
-        out[i] = float(np.median(np.linalg.norm((nxt - pts).reshape(-1, 2)[ok], axis=1)))
+        if ok.sum() >= 8:
+            yield i, pts.reshape(-1, 2)[ok].astype(np.float64), nxt.reshape(-1, 2)[ok].astype(np.float64)
+
+
+def background_motion_px(frames: list[np.ndarray], person_masks: np.ndarray, max_corners: int = 400) -> np.ndarray:
+    """Median background displacement (pixels) from each frame to the next, ``(N - 1,)``.
+
+    frames: N ``(H, W, 3)`` uint8 RGB. person_masks: (N, H, W) bool, left out (dilated). A corner
+    counts when tracking it forward and back lands within ``FB_MAX_PX`` of where it started and its
+    patch matches (``PATCH_MAX_DIFF``); NaN for
+    a pair with fewer than 8 such corners (frames that share no background: no evidence either way).
+    """
+    out = np.full(max(len(frames) - 1, 0), np.nan)
+    for i, a, b in _background_tracks(frames, person_masks, max_corners):
+        out[i] = float(np.median(np.linalg.norm(b - a, axis=1)))
     return out
+
+
+def rotation_between(bearings_a: np.ndarray, bearings_b: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """The rotation ``R (3, 3)`` with ``b ~ R a`` for unit bearings ``(K, 3)`` of far points seen from one place
+    (Wahba's problem: the SVD of ``sum b a^T``), refitted ``rounds`` times on the pairs within three times the
+    median angle (at least 0.1 deg) of it: near points' parallax and things that move are left out."""
+    a, b = np.asarray(bearings_a, dtype=np.float64), np.asarray(bearings_b, dtype=np.float64)
+    use = np.ones(len(a), dtype=bool)
+    R = np.eye(3)
+    for _ in range(rounds + 1):
+        U, _, Vt = np.linalg.svd(b[use].T @ a[use])
+        R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        angle = np.arccos(np.clip(np.einsum("ki,ki->k", b, a @ R.T), -1.0, 1.0))
+        cut = max(3.0 * float(np.median(angle[use])), math.radians(0.1))
+        if (angle <= cut).sum() < 3:
+            break
+        use = angle <= cut
+    return R
+
+
+def rotation_path(frames: list[np.ndarray], person_masks: np.ndarray, camera: Camera,
+                  max_corners: int = 400) -> tuple[np.ndarray, int]:
+    """The camera's rotations ``(N, 3, 3)`` (camera-to-world, frame 0's axes as the world) from the background's
+    image motion alone, as for a camera turning where it stands (``rotation_between`` on the tracked corners'
+    bearings, chained); and how many frame pairs had no background to track (taken as not turning)."""
+    R = np.tile(np.eye(3), (len(frames), 1, 1))
+    step = np.tile(np.eye(3), (max(len(frames) - 1, 0), 1, 1))
+    found = np.zeros(len(step), dtype=bool)
+    for i, a, b in _background_tracks(frames, person_masks, max_corners):
+        da, db = camera.unproject(a), camera.unproject(b)
+        da /= np.linalg.norm(da, axis=1, keepdims=True)
+        db /= np.linalg.norm(db, axis=1, keepdims=True)
+        step[i], found[i] = rotation_between(da, db), True  # b = R_{i+1}^T R_i a
+    for i in range(len(step)):
+        R[i + 1] = R[i] @ step[i].T
+    return R, int((~found).sum())
 
 
 def camera_moves(motion_px: np.ndarray, width: int) -> bool:
@@ -272,21 +323,28 @@ def speed_from_cadence(cadence_steps_s: float, height_m: float = REFERENCE_HEIGH
 
 def path_length_m(xyz_m: np.ndarray, fps: float, smoothing_s: float = ROOT_SMOOTHING_S) -> float:
     """Length of a path ``(F, D)`` sampled at ``fps`` after Gaussian smoothing over ``smoothing_s`` (NaN rows
-    interpolated; NaN if fewer than two rows are finite). The ends are padded by point reflection, so a straight
-    walk at constant speed keeps its length (padding by repeating the ends would shorten it by about a sigma)."""
-    from scipy.ndimage import gaussian_filter1d
-
+    interpolated; NaN if fewer than two rows are finite), its ends padded by point reflection (``smooth_path``: a
+    straight walk at constant speed keeps its length)."""
     p = np.asarray(xyz_m, dtype=np.float64)
     ok = np.isfinite(p).all(axis=1)
     if ok.sum() < 2:
         return float("nan")
     first, last = np.flatnonzero(ok)[[0, -1]]
-    p = _filled(p, ok)[first:last + 1]
-    sigma = smoothing_s * fps
-    k = min(len(p) - 1, int(math.ceil(4.0 * sigma)))
-    padded = np.concatenate([2.0 * p[0] - p[k:0:-1], p, 2.0 * p[-1] - p[-2:-k - 2:-1]]) if k > 0 else p
-    p = gaussian_filter1d(padded, sigma, axis=0, mode="nearest")[k:k + len(p)]
+    p = smooth_path(_filled(p, ok)[first:last + 1], smoothing_s * fps)
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def smooth_path(xyz: np.ndarray, sigma_frames: float) -> np.ndarray:
+    """A path ``(F, D)`` smoothed along F by a Gaussian of ``sigma_frames``, its ends padded by point reflection:
+    a straight line at constant speed stays as it is (repeating the ends would slow it down there)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    p = np.asarray(xyz, dtype=np.float64)
+    k = min(len(p) - 1, int(math.ceil(4.0 * sigma_frames)))
+    if k <= 0 or sigma_frames <= 0:
+        return p.copy()
+    padded = np.concatenate([2.0 * p[0] - p[k:0:-1], p, 2.0 * p[-1] - p[-2:-k - 2:-1]])
+    return gaussian_filter1d(padded, sigma_frames, axis=0, mode="nearest")[k:k + len(p)]
 
 
 def walking_speed_mps(root_xyz_m: np.ndarray, fps: float) -> float:
@@ -440,13 +498,25 @@ def camera_path(frames: list[np.ndarray], person_masks: np.ndarray, fps: float, 
         try:
             result = run_sfm(root / "images", root / "sfm", opts, known_camera=known, image_names=names,
                              mask_dir=root / "masks")
-            placed = len(result.registered_names)
+            placed, points = len(result.registered_names), len(result.points_xyz)
         except InputError:  # fewer than two registered (run_sfm's hint names reconstruct's options, not these)
-            placed = 0
-    if placed < MIN_REGISTERED_FRACTION * len(names):
-        raise InputError(f"{source}: the camera moves, but SfM placed only {placed} of {len(names)} keyframes from the "
-                         "background (too little of it in view, or too plain); if the camera stands still, give "
-                         "--camera static")
+            placed, points = 0, 0
+    if placed < MIN_REGISTERED_FRACTION * len(names) or points < SFM_MIN_POINTS:
+        camera = known if known is not None else static_camera(w, h)
+        R, blind = rotation_path(frames, person_masks, camera)
+        if blind > MIN_REGISTERED_FRACTION * max(n - 1, 1):
+            raise InputError(f"{source}: the camera moves, but SfM placed {placed} of {len(names)} keyframes with "
+                             f"{points} points, and "
+                             f"{blind} of {n - 1} frame pairs show no background to track; if the camera stands "
+                             "still, give --camera static")
+        log.warning("%s: SfM placed %d of %d keyframes with %d points (a far or plain background, or a camera turning "
+                    "where it stands): the camera's turns from the background's image motion instead (%d of %d frame "
+                    "pairs tracked), its travel from the person", source, placed, len(names), points, n - 1 - blind,
+                    n - 1)
+        c2w = np.tile(np.eye(4), (n, 1, 1))
+        c2w[:, :3, :3] = R
+        return CameraPath(c2w, camera, np.zeros((0, 3)), keys, np.zeros(len(keys), dtype=bool),
+                          time.perf_counter() - t0, "rotation")
     key_c2w = np.stack([result.cam_to_world.get(name, np.full((4, 4), np.nan)) for name in names])
     camera = known if known is not None else result.cameras[result.registered_names[0]]
     return CameraPath(interpolate_path(keys, key_c2w, n, fps), camera, np.asarray(result.points_xyz, dtype=np.float64),
@@ -558,10 +628,46 @@ def floor_scale(cam_points_m: np.ndarray, weights: np.ndarray, cam_to_world_zup:
     return metres / units if units > 0 and metres > 0 else float("nan")
 
 
+def facing_cam(body_m: np.ndarray) -> np.ndarray:
+    """The way a person faces, ``(F, 3)`` unit vectors in the camera's axes, from the detector's landmarks
+    ``(F, L, 3)``: across the hips (left minus right) crossed with the body's axis (hips to shoulders). NaN where
+    those landmarks are not all finite."""
+    b = np.asarray(body_m, dtype=np.float64)
+    across = b[:, _HIPS[0]] - b[:, _HIPS[1]]
+    up = b[:, _SHOULDERS].mean(axis=1) - b[:, _HIPS].mean(axis=1)
+    f = np.cross(across, up)
+    return f / np.linalg.norm(f, axis=1, keepdims=True)
+
+
+def travel_with_person(root_world_m: np.ndarray, facing_world: np.ndarray, times: np.ndarray,
+                       speed_mps: float) -> np.ndarray:
+    """Where a camera that turns in place ``(F, 3)`` would have to travel so that the person it films, at
+    ``root_world_m (F, 3)`` as seen from the origin, walks at ``speed_mps`` the way it faces (``facing_world (F,
+    3)``, smoothed over ``ROOT_SMOOTHING_S``): the walk dead-reckoned from the first frame, minus the person's
+    place in view, smoothed alike (the person's own sway stays theirs). Rows NaN in either input: NaN."""
+    from scipy.ndimage import gaussian_filter1d
+
+    r, f = np.asarray(root_world_m, dtype=np.float64), np.asarray(facing_world, dtype=np.float64)
+    time = np.asarray(times, dtype=np.float64)
+    ok = np.isfinite(r).all(axis=1) & np.isfinite(f).all(axis=1)
+    out = np.full(r.shape, np.nan)
+    if ok.sum() < 2:
+        return out
+    idx = np.flatnonzero(ok)
+    fps = 1.0 / float(np.median(np.diff(time[idx])))
+    heading = gaussian_filter1d(f[idx], ROOT_SMOOTHING_S * fps, axis=0, mode="nearest")
+    heading /= np.linalg.norm(heading, axis=1, keepdims=True)
+    dt = np.diff(time[idx], prepend=time[idx[0]])
+    walked = r[idx[0]] + np.cumsum(speed_mps * heading * dt[:, None], axis=0)
+    out[idx] = smooth_path(walked - r[idx], ROOT_SMOOTHING_S * fps)
+    return out
+
+
 def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibility: np.ndarray, camera: Camera,
                            cam_to_world_sfm: np.ndarray, points_xyz: np.ndarray | None = None,
                            camera_height_m: float | None = None, body_height_m: float | None = None,
-                           times: np.ndarray | None = None, steps_speed_mps: float | None = None) -> Placement:
+                           times: np.ndarray | None = None, steps_speed_mps: float | None = None,
+                           rotation_only: bool = False) -> Placement:
     """``nsim.human.monocular.place_landmarks`` for a moving camera (step 3 of the module docstring).
 
     cam_to_world_sfm: (F, 4, 4) SfM's camera of each frame (NaN rows: not registered, not placed);
@@ -571,6 +677,11 @@ def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibili
     Returns a ``Placement`` whose ``cam_to_world`` is (F, 4, 4) (z-up metric world, floor z = 0),
     ``camera_height_m`` the median camera height, ``scale`` the metres per SfM unit and ``scale_from`` where that
     came from (``SCALE_SOURCES``). ValueError if no frame can be placed or no scale found.
+
+    rotation_only: ``cam_to_world_sfm`` holds only the camera's turns (``CameraPath.model`` "rotation"; centres
+    ignored). If the person, seen from a camera turning where it stands, already walks at least half as fast as
+    the steps say, that is taken as so ("standing": a camera panning after a walker); else the camera travels with
+    the person (``travel_with_person``, "steps").
     """
     if camera_height_m is not None and body_height_m is not None:
         raise ValueError("place_landmarks_moving: give camera_height_m or body_height_m, not both")
@@ -584,32 +695,50 @@ def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibili
     cam = np.asarray(body_m, dtype=np.float64) + t[:, None, :]
     w = np.where(placed[:, None], w, 0.0)
     G = None
+    root_t = np.where(placed[:, None], t, np.nan)
+    target = None if steps_speed_mps is None else float(steps_speed_mps)
+    if target is not None and body_height_m is not None:  # the speed is the person's metres; the path the detector's
+        from nsim.human.fit import estimate_body
+
+        target *= estimate_body(cam, w).height_m / float(body_height_m)
+    if rotation_only:
+        c2w = c2w.copy()
+        c2w[:, :3, 3] = 0.0
+        c2w[~placed] = np.nan
+        seen = np.einsum("fij,fj->fi", c2w[:, :3, :3], root_t)
+        fps = 1.0 / float(np.median(np.diff(time[placed]))) if placed.sum() > 1 else 1.0
+        seen_speed = path_length_m(seen, fps) / max(float(np.ptp(time[placed])), 1e-9)
+        if target is None or seen_speed >= 0.5 * target:
+            s, scale_from = 1.0, "standing"
+        else:
+            facing = np.einsum("fij,fj->fi", c2w[:, :3, :3], facing_cam(body_m))
+            c2w[:, :3, 3] = travel_with_person(seen, facing, time, target)
+            s, scale_from = 1.0, "steps"
+        placed &= np.isfinite(c2w).all(axis=(1, 2))
+        w = np.where(placed[:, None], w, 0.0)
+        points_xyz = None
     if points_xyz is not None and len(points_xyz):
         from nsim.sfm.align import gravity_align
 
         grav = gravity_align(points_xyz, c2w[placed])
         if grav.floor_found:
             G = grav.T
-    s, scale_from = float("nan"), ""
+    if not rotation_only:
+        s, scale_from = float("nan"), ""
     if G is not None:  # SfM's floor: z-up SfM world, scale from the camera's height over the person's feet
         zup = np.einsum("ij,fjk->fik", G, c2w)
         s, scale_from = floor_scale(np.where(placed[:, None, None], cam, np.nan), w, zup), "floor"
-    root_t = np.where(placed[:, None], t, np.nan)
     if not (np.isfinite(s) and s > 0):
         G = None
         s, scale_from = metric_scale(root_t, c2w, time), "path"
         if not metric_scale_error(root_t, c2w, time, s) <= MAX_PATH_SCALE_ERROR:
             s = float("nan")
-    if not (np.isfinite(s) and s > 0) and steps_speed_mps is not None:
-        target = float(steps_speed_mps)
-        if body_height_m is not None:  # the speed is in the person's metres; the path is still in the detector's
-            from nsim.human.fit import estimate_body
-
-            target *= estimate_body(cam, w).height_m / float(body_height_m)
+    if not (np.isfinite(s) and s > 0) and target is not None:
         s, scale_from = steps_scale(root_t, c2w, time, target), "steps"
     if not (np.isfinite(s) and s > 0):
+        steps = "the person's steps were not seen" if target is None else "the steps give none either"
         raise ValueError("place_landmarks_moving: the camera's path gives no scale (no floor among its points, it "
-                         "moves too nearly on a straight line at constant speed, and the person's steps were not seen)")
+                         f"moves too nearly on a straight line at constant speed, and {steps})")
     if G is None:
         R, C = c2w[:, :3, :3], s * c2w[:, :3, 3]
     else:
@@ -641,9 +770,9 @@ def place_landmarks_moving(body_m: np.ndarray, image_uv_px: np.ndarray, visibili
 
 
 __all__ = ["FB_MAX_PX", "FOLLOWED_MAX_ADVANCE_M", "KEYFRAME_FPS", "KEYFRAME_MOTION_FRACTION", "MASK_DILATION_FRACTION",
-           "MAX_INTERPOLATION_GAP_S", "MAX_PATH_SCALE_ERROR", "MIN_REGISTERED_FRACTION", "MIN_STEPS", "MIN_SWING_M", "MOVING_FRACTION",
+           "MAX_INTERPOLATION_GAP_S", "MAX_PATH_SCALE_ERROR", "MIN_REGISTERED_FRACTION", "MIN_STEPS", "SFM_MIN_POINTS", "MIN_SWING_M", "MOVING_FRACTION",
            "PATCH_MAX_DIFF", "ROOT_SMOOTHING_S", "SCALE_SOURCES", "SFM_MAX_FEATURES", "SFM_OVERLAP",
            "WALK_CADENCE_STEPS_S", "CameraDecision", "CameraPath", "Steps", "background_motion_px", "camera_moves",
-           "camera_path", "count_steps", "decide_camera", "floor_scale", "interpolate_path", "keyframes",
-           "metric_scale", "metric_scale_error", "path_length_m", "place_landmarks_moving", "speed_from_cadence",
-           "steps_scale", "walking_speed_mps"]
+           "camera_path", "count_steps", "decide_camera", "facing_cam", "floor_scale", "interpolate_path", "keyframes",
+           "metric_scale", "metric_scale_error", "path_length_m", "place_landmarks_moving", "rotation_between",
+           "rotation_path", "smooth_path", "speed_from_cadence", "steps_scale", "travel_with_person", "walking_speed_mps"]

@@ -271,7 +271,8 @@ def fit_person(obs: Observations, fps: float, cfg: PersonVideoConfig = PersonVid
                      if steps.walks else None)
             placed = place_landmarks_moving(obs.body_m[keep], obs.image_uv_px[keep], obs.visibility[keep], camera,
                                             np.asarray(camera_path.cam_to_world)[keep], camera_path.points_xyz,
-                                            cfg.camera_height_m, cfg.body_height_m, np.flatnonzero(keep) / fps, speed)
+                                            cfg.camera_height_m, cfg.body_height_m, np.flatnonzero(keep) / fps, speed,
+                                            rotation_only=camera_path.model == "rotation")
     except ValueError as err:
         raise InputError(f"{source}: cannot place the person in 3D ({err})") from None
     unplaced = np.zeros(N, dtype=bool)

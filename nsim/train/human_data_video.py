@@ -220,8 +220,9 @@ def prepare_person_data(source: PersonSource, out_dir: str | Path, detector=None
     if decision.moving:
         moving = camera_path(frames, masks, fps, cfg.hfov_deg, motion, source=src)
         summary = moving.summary()
-        log.info("%s: the camera's path from %d of %d keyframes (SfM, the person masked out, %d points) in %.0f s",
-                 src, summary["keyframes_registered"], summary["keyframes"], summary["points"], moving.seconds)
+        if moving.model == "sfm":
+            log.info("%s: the camera's path from %d of %d keyframes (SfM, the person masked out, %d points) in %.0f s",
+                     src, summary["keyframes_registered"], summary["keyframes"], summary["points"], moving.seconds)
     fit = fit_person(obs, fps, cfg, source=src, camera_path=moving)
     _log_speed(src, fit)
     for d in fit.dropped:
@@ -257,8 +258,9 @@ def _log_speed(name: str, fit: PersonFit) -> None:
                     "scale (no floor among its points, and it moves too nearly on a straight line at constant speed)",
                     name, speed, seconds, said)
     else:
-        log.info("%s: walking speed %.2f m/s over %.1f s (moving camera, metres per SfM unit from the %s; %s)",
-                 name, speed, seconds, fit.scale_from, said)
+        metres = {"floor": "metres per SfM unit from the floor", "path": "metres per SfM unit from the path's shape",
+                  "standing": "a camera turning where it stands, the detector's metres"}[fit.scale_from]
+        log.info("%s: walking speed %.2f m/s over %.1f s (moving camera, %s; %s)", name, speed, seconds, metres, said)
     lo, hi = WALK_CADENCE_STEPS_S
     if fit.steps.walks and not lo <= fit.steps.cadence_steps_s <= hi:
         log.warning("%s: the person takes %.2f steps a second, outside a walk's %g-%g: %s", name,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from nsim.geometry.transforms import look_at
 from nsim.human.fit import mpjpe_m, reference_body
@@ -30,6 +31,8 @@ from nsim.human.moving_camera import (
     metric_scale,
     metric_scale_error,
     place_landmarks_moving,
+    rotation_between,
+    rotation_path,
     speed_from_cadence,
     walking_speed_mps,
 )
@@ -261,6 +264,57 @@ def test_a_camera_following_on_a_straight_line_takes_its_scale_from_the_steps():
         place_landmarks_moving(body_m, uv, vis, cam, sfm, None, times=time)
     placed = place_landmarks_moving(body_m, uv, vis, cam, sfm, None, times=time, steps_speed_mps=1.3)
     assert placed.scale_from == "steps" and placed.scale == pytest.approx(1 / SFM_SCALE, rel=0.1)
+    world_root = placed.landmarks_m[:, HIPS].mean(axis=1)
+    assert walking_speed_mps(world_root, FPS) == pytest.approx(walking_speed_mps(root, FPS), rel=0.1)
+
+
+def test_a_turning_cameras_rotations_from_the_background():
+    rng = np.random.default_rng(6)
+    # bearings of far points, 20 % of them moving on their own
+    a = rng.normal(size=(200, 3)) + (0.0, 0.0, 3.0)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    R = Rotation.from_rotvec([0.02, -0.05, 0.01]).as_matrix()
+    b = a @ R.T
+    b[:40] += rng.normal(0.0, 0.05, (40, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    np.testing.assert_allclose(rotation_between(a, b), R, atol=1e-6)
+    # a textured wall far away, filmed by a camera panning 0.8 deg a frame: frames are homographies K R K^-1
+    cam = static_camera(320, 240, 65.0)
+    K = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
+    wall = (rng.uniform(0, 255, (60, 80)).repeat(8, 0).repeat(8, 1)).astype(np.uint8)
+    wall = np.stack([wall] * 3, axis=-1)
+    c2w = [Rotation.from_euler("y", 0.8 * k, degrees=True).as_matrix() for k in range(5)]
+    big = static_camera(640, 480, 65.0 * 2.0)  # the wall seen wider than the camera: every frame inside it
+    import cv2
+
+    frames = []
+    for Rk in c2w:
+        Kb = np.array([[big.fx, 0.0, big.cx], [0.0, big.fy, big.cy], [0.0, 0.0, 1.0]])
+        H = K @ Rk.T @ np.linalg.inv(Kb)  # wall pixel (seen by the wide camera at the origin) -> this frame
+        frames.append(cv2.warpPerspective(cv2.resize(wall, (640, 480)), H, (320, 240)))
+    masks = np.zeros((5, 240, 320), bool)
+    got, blind = rotation_path(frames, masks, cam)
+    assert blind == 0
+    for k in range(5):
+        assert np.degrees(np.arccos(np.clip((np.trace(got[k].T @ c2w[k]) - 1) / 2, -1, 1))) < 0.05
+
+
+def test_a_camera_only_turning_follows_the_walker_or_stands():
+    # following on a straight line, its turns known but not its travel: the travel from the steps
+    body_m, uv, vis, cam, c2w, joints, root = _filmed(4.0, "following")
+    time = np.arange(len(c2w)) / FPS
+    turns = c2w.copy()
+    turns[:, :3, 3] = 0.0
+    placed = place_landmarks_moving(body_m, uv, vis, cam, turns, None, times=time, steps_speed_mps=1.3,
+                                    rotation_only=True)
+    assert placed.scale_from == "steps"
+    world_root = placed.landmarks_m[:, HIPS].mean(axis=1)
+    assert walking_speed_mps(world_root, FPS) == pytest.approx(walking_speed_mps(root, FPS), rel=0.1)
+    # a camera that stands and pans after the walk: the person's own travel, in the detector's metres
+    body_m, uv, vis, cam, c2w, joints, root = _filmed(4.0, "static")
+    placed = place_landmarks_moving(body_m, uv, vis, cam, c2w, None, times=time, steps_speed_mps=1.3,
+                                    rotation_only=True)
+    assert placed.scale_from == "standing"
     world_root = placed.landmarks_m[:, HIPS].mean(axis=1)
     assert walking_speed_mps(world_root, FPS) == pytest.approx(walking_speed_mps(root, FPS), rel=0.1)
 
