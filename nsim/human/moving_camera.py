@@ -25,7 +25,12 @@
    sequential matching over ``SFM_OVERLAP`` neighbours, no loop detection. The other frames' poses
    are interpolated between registered keyframes. Its world has an arbitrary scale. (A 7.4 s
    following-camera video at 640x360, 89 frames at 12 fps: 1,002 s with every frame; 31 keyframes,
-   all registered, in 68-90 s on two busy cores.)
+   all registered, in 68-90 s on two busy cores.) Where SfM places fewer than
+   ``MIN_REGISTERED_FRACTION`` of the keyframes or keeps fewer than ``SFM_MIN_POINTS`` points (a far
+   or plain background, a camera turning where it stands, grass and leaves), the lighter model: the
+   camera's turns from the background's image motion (``rotation_path``: a far background moves in
+   the image as the camera turns, whatever its travel), its travel left to the person (step 3),
+   said in a warning line.
 3. **Metres** (``place_landmarks_moving``): each frame's landmarks in its camera frame (metric, from
    the detector's body-size prior; ``nsim.human.monocular.root_translations``) go into SfM's world
    as ``R_f p + s C_f`` with the camera's rotation ``R_f`` and centre ``C_f``. The one unknown,
@@ -43,6 +48,11 @@
    * *the steps*, the last resort: ``s`` makes the person's mean velocity as fast as its cadence
      says (``speed_from_cadence``: nsim's stride-speed relation, ``nsim.human.gait_phase``), logged
      with the number.
+
+   With the turns alone (``rotation_path``), the person seen from a camera turning where it stands
+   either already walks at least half as fast as the steps say (a camera panning after the walker:
+   "standing", the detector's metres) or the camera travels with the person at the steps' speed the
+   way the person faces (``travel_with_person``, "steps").
 
    Without the floor, up and floor come from the person as for a static camera
    (``nsim.human.monocular.floor_frame``). ``--camera-height`` (the median camera height above the

@@ -24,6 +24,7 @@ from nsim.human.moving_camera import (
     CameraPath,
     background_motion_px,
     camera_moves,
+    camera_path,
     count_steps,
     decide_camera,
     interpolate_path,
@@ -283,7 +284,7 @@ def test_a_turning_cameras_rotations_from_the_background():
     K = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
     wall = (rng.uniform(0, 255, (60, 80)).repeat(8, 0).repeat(8, 1)).astype(np.uint8)
     wall = np.stack([wall] * 3, axis=-1)
-    c2w = [Rotation.from_euler("y", 0.8 * k, degrees=True).as_matrix() for k in range(5)]
+    c2w = [Rotation.from_euler("y", 0.8 * k, degrees=True).as_matrix() for k in range(8)]
     big = static_camera(640, 480, 65.0 * 2.0)  # the wall seen wider than the camera: every frame inside it
     import cv2
 
@@ -292,11 +293,16 @@ def test_a_turning_cameras_rotations_from_the_background():
         Kb = np.array([[big.fx, 0.0, big.cx], [0.0, big.fy, big.cy], [0.0, 0.0, 1.0]])
         H = K @ Rk.T @ np.linalg.inv(Kb)  # wall pixel (seen by the wide camera at the origin) -> this frame
         frames.append(cv2.warpPerspective(cv2.resize(wall, (640, 480)), H, (320, 240)))
-    masks = np.zeros((5, 240, 320), bool)
+    masks = np.zeros((len(frames), 240, 320), bool)
     got, blind = rotation_path(frames, masks, cam)
     assert blind == 0
-    for k in range(5):
+    for k in range(len(frames)):
         assert np.degrees(np.arccos(np.clip((np.trace(got[k].T @ c2w[k]) - 1) / 2, -1, 1))) < 0.05
+    # SfM cannot start on a camera that only turns: camera_path falls back to the turns, centres at the origin
+    path = camera_path(frames, masks, 4.0, hfov_deg=65.0)
+    assert path.model == "rotation" and path.summary()["model"] == "rotation" and len(path.points_xyz) == 0
+    np.testing.assert_allclose(path.cam_to_world[:, :3, :3], got, atol=1e-9)
+    assert (path.cam_to_world[:, :3, 3] == 0).all()
 
 
 def test_a_camera_only_turning_follows_the_walker_or_stands():
