@@ -424,6 +424,30 @@ class HumanModel(nn.Module):
         logw = out.reshape(J, n).t()
         return torch.where(inside, logw, torch.full_like(logw, -1e4))
 
+    def blend_log_weights_of(self, y: Tensor, joints: Tensor) -> Tensor:
+        """Joint ``joints[n, k]``'s canonical log-weight at its candidate ``y[n, k] (N, K, 3)``: ``(N, K)`` (``-1e4``
+        outside the box). What :meth:`blend_log_weights_at` reads for every joint (the same trilinear interpolation
+        on the grid's vertices, clamped at its border), for the given ones only."""
+        vol = self.blend_log_weights[:, 0]  # (J, Z, Y, X)
+        J, Z, Y, X = vol.shape
+        g, inside = self._grid_coords(y)
+        size = torch.tensor([X - 1, Y - 1, Z - 1], dtype=y.dtype, device=y.device)
+        p = torch.minimum(torch.maximum((g + 1.0) * 0.5 * size, torch.zeros_like(size)), size)
+        p0 = torch.minimum(torch.floor(p), (size - 1).clamp(min=0)).detach()
+        f = p - p0
+        i0 = p0.long()
+        flat = vol.reshape(-1)
+        base = joints * (Z * Y * X)
+        out = torch.zeros_like(f[..., 0])
+        for dz in (0, 1):
+            for dy in (0, 1):
+                for dx in (0, 1):
+                    row = ((i0[..., 2] + dz).clamp(max=Z - 1) * Y + (i0[..., 1] + dy).clamp(max=Y - 1)) * X
+                    w = ((f[..., 0] if dx else 1.0 - f[..., 0]) * (f[..., 1] if dy else 1.0 - f[..., 1])
+                         * (f[..., 2] if dz else 1.0 - f[..., 2]))
+                    out = out + w * flat[base + row + (i0[..., 0] + dx).clamp(max=X - 1)]
+        return torch.where(inside, out, torch.full_like(out, -1e4))
+
     def canonical_weights(self, x_c: Tensor) -> Tensor:
         """Every joint's canonical weight at canonical points ``x_c (N, 3)``: ``(N, J)`` (not normalised)."""
         g, inside = self._grid_coords(x_c)
@@ -466,20 +490,33 @@ class HumanModel(nn.Module):
         with each point's pose in ``pose_index (N,)``."""
         n = x_p.shape[0]
         idx = self._index(n, pose_index, x_p.device)
-        y, logw, rot_inv = self.candidates(x_p, joint_transforms, idx)
-        ownership = torch.exp(torch.logsumexp(logw, dim=1))
         if self.cfg.skinning == "blend":
+            y, logw, rot_inv = self.candidates(x_p, joint_transforms, idx)
+            ownership = torch.exp(torch.logsumexp(logw, dim=1))
             w = torch.softmax(logw, dim=1)
             x_c = torch.einsum("nj,nja->na", w, y)[:, None]
             rot = torch.einsum("nj,njab->nab", w, rot_inv[idx])[:, None]
             weights = ownership.clamp(max=1.0)[:, None]
             joint = torch.full_like(weights, -1, dtype=torch.long)
         else:
-            k = min(self.cfg.skinning_candidates, logw.shape[1])
-            top, joint = torch.topk(logw, k, dim=1)
+            T = self.as_transforms(joint_transforms)
+            # Which hypotheses: every joint's candidate weighed, without a graph (the choice is not differentiated,
+            # and only the chosen hypotheses reach the loss). Where the warp is differentiated (pose refinement,
+            # learned skinning weights) the chosen ones are then formed again, with their gradients: the same
+            # numbers, at the cost of K candidates instead of J.
+            with torch.no_grad():
+                y, logw, rot_inv = self.candidates(x_p, T, idx)
+                ownership = torch.exp(torch.logsumexp(logw, dim=1))
+                top, joint = torch.topk(logw, min(self.cfg.skinning_candidates, logw.shape[1]), dim=1)
+            if torch.is_grad_enabled() and (T.requires_grad or x_p.requires_grad
+                                            or self.blend_log_weights.requires_grad):
+                G_inv = torch.linalg.inv(self.skinning(T))[idx[:, None], joint]  # (N, K, 4, 4)
+                x_c = torch.einsum("nkab,nb->nka", G_inv[..., :3, :3], x_p) + G_inv[..., :3, 3]
+                top, rot = self.blend_log_weights_of(x_c, joint), G_inv[..., :3, :3]
+            else:
+                x_c = torch.gather(y, 1, joint[..., None].expand(-1, -1, 3))
+                rot = rot_inv[idx[:, None], joint]
             weights = torch.exp(top)
-            x_c = torch.gather(y, 1, joint[..., None].expand(-1, -1, 3))
-            rot = rot_inv[idx[:, None], joint]
         if self.nonrigid is not None:
             k = x_c.shape[1]
             code = self.pose_codes(joint_transforms)[idx]

@@ -118,7 +118,9 @@ class HumanLossConfig:
     unchanged by a turn about the point's bone in its cross-section, the trunk's ``trunk_aspect`` deep as wide;
     mean squared difference), ``symmetry_weight`` and ``symmetry_colour_weight`` (opacity and, weighted by it,
     colour unchanged by the left/right mirror), ``unseen_colour_weight`` (the colour of points that faced no training
-    camera pulled towards the mean colour of their bone where seen, weighted by their opacity)."""
+    camera pulled towards the mean colour of their bone where seen, weighted by their opacity). And
+    ``opacity_entropy_weight``: the mean binary entropy (nats) of the batch rays' person opacity, against
+    half-transparent people and floaters."""
 
     mask_weight: float = param(0.5, ge=0.0)
     blend_weight: float = param(1e-3, ge=0.0)
@@ -127,6 +129,7 @@ class HumanLossConfig:
     symmetry_weight: float = param(0.0, ge=0.0, help="left/right mirror symmetry of the opacity")
     symmetry_colour_weight: float = param(0.0, ge=0.0, help="left/right mirror symmetry of the colour")
     unseen_colour_weight: float = param(0.0, ge=0.0, help="unseen colour pulled to its bone's seen colour")
+    opacity_entropy_weight: float = param(0.0, ge=0.0, help="binary entropy of the rays' person opacity (0 or 1)")
     prior_points: int = param(2048, ge=1, help="canonical points a step for the priors above")
     prior_radius_m: float = param(0.2, gt=0.0, help="the priors' points lie this close to a bone")
     prior_step_m: float = param(0.02, gt=0.0, help="opacity of density sigma: 1 - exp(-sigma prior_step_m)")
@@ -171,7 +174,9 @@ class HumanOutputConfig:
 class HumanRefineConfig:
     """Pose refinement (``nsim.human.refine``, as NeuMan and HumanNeRF): per-frame joint rotations and a
     root translation learned with the NeRF by the same losses, from ``start_fraction`` of the steps on,
-    at Adam's rate ``lr`` (decaying with the others; 0: the poses are used as given). The regulariser
+    at Adam's rate ``lr`` (decaying with the others; 0: the poses are used as given), on every ``every``-th step
+    from there (a step that refines costs about twice one that does not: the gradient reaches the poses through
+    the canonical field's encoding; on the others the poses are used as refined so far). The regulariser
     (weights ``*_weight``, added to the loss) keeps the corrections small and smooth in frame order, which
     also carries the neighbours' corrections to held-out frames (see ``nsim.human.refine``).
 
@@ -184,6 +189,7 @@ class HumanRefineConfig:
 
     lr: float = param(0.0, ge=0.0, help="Adam's rate for the corrections (radians, metres); 0: off")
     start_fraction: float = param(0.25, ge=0.0, lt=1.0, help="refine from this share of the steps on")
+    every: int = param(1, ge=1, help="refine on every this-many-th step from the start (between, the poses as refined)")
     rotation_weight: float = param(1e-3, ge=0.0, help="prior on the joint corrections, per rad^2")
     translation_weight: float = param(1e-1, ge=0.0, help="prior on the root translation, per m^2")
     smooth_weight: float = param(1e-1, ge=0.0, help="first differences between consecutive frames' corrections")
@@ -496,9 +502,20 @@ class HumanTrainer(ResumableTrainer):
         step = self.step
         cfg = self.cfg
         frames, v, u, g = self.batch(step)
-        out = self.render_rays(frames, v, u, generator=g, poses=self.poses())
+        pose_step = self.refining() and (step - self.refine_start) % cfg.refine.every == 0
+        if self.refining() and not pose_step:  # the refined poses as they are: no gradient for them this step
+            with torch.no_grad():
+                poses = self.poses()
+        else:
+            poses = self.poses()
+        out = self.render_rays(frames, v, u, generator=g, poses=poses)
         loss, mse, mask_loss = self.image_loss(out, frames, v, u)
         extra = {"mask": float(mask_loss.detach())}
+        if cfg.loss.opacity_entropy_weight > 0:
+            a = out.alpha[0].clamp(1e-4, 1.0 - 1e-4)
+            entropy = -torch.mean(a * torch.log(a) + (1.0 - a) * torch.log(1.0 - a))
+            loss = loss + cfg.loss.opacity_entropy_weight * entropy
+            extra["opacity_entropy"] = float(entropy.detach())
         if cfg.loss.blend_weight > 0 and self.model.blend_log_weights.requires_grad:
             reg = torch.mean((self.model.blend_log_weights - self.blend_init) ** 2)
             loss = loss + cfg.loss.blend_weight * reg
@@ -507,7 +524,7 @@ class HumanTrainer(ResumableTrainer):
             prior, terms = self.prior_loss(step)
             loss = loss + prior
             extra.update(terms)
-        if self.refining():
+        if pose_step:
             r = cfg.refine
             reg = self.refine.regulariser(r.rotation_weight, r.translation_weight, r.smooth_weight)
             loss = loss + reg

@@ -134,6 +134,33 @@ def test_inverse_skinning_is_exact_for_rigid_parts(skeleton, walk_poses):
 
 
 # ---------------------------------------------------------------------- samples in the box
+def test_differentiated_warp_matches_its_every_joint_twin(skeleton, walk_poses):
+    """Where the warp is differentiated (poses refined, skinning weights learned), only the chosen hypotheses are
+    formed again with their gradients: the same canonical points, weights and rotations, and the same gradients
+    for the poses and the weight volume, as forming every joint's candidate with its gradient (the plain twin)."""
+    m = model(skeleton=skeleton)
+    T = torch.tensor(np.stack(walk_poses[:2]), dtype=torch.float32, requires_grad=True)
+    x = torch.cat([m.canonical_to_posed(near_bone_points(skeleton, 6, 0.03, seed=p), T.detach()[p]) for p in (0, 1)]).detach()
+    idx = torch.arange(2).repeat_interleave(len(x) // 2)
+    g = torch.Generator().manual_seed(0)
+    r = [torch.randn(s, generator=g) for s in ((len(x), 2, 3), (len(x), 2), (len(x), 2, 3, 3))]
+
+    def twin():
+        y, logw, rot_inv = m.candidates(x, T, idx)
+        top, joint = torch.topk(logw, 2, dim=1)
+        return torch.gather(y, 1, joint[..., None].expand(-1, -1, 3)), torch.exp(top), rot_inv[idx[:, None], joint]
+
+    grads = []
+    for f in (lambda: (lambda w: (w.x_c, w.weights, w.rot_pc))(m.warp(x, T, idx)), twin):
+        out = f()
+        loss = sum((o * rr).sum() for o, rr in zip(out, r, strict=True))
+        grads.append(torch.autograd.grad(loss, [T, m.blend_log_weights]))
+        grads[-1] = (*grads[-1], *[o.detach() for o in out])
+    for a, b in zip(*grads, strict=True):
+        torch.testing.assert_close(a, b, atol=2e-4, rtol=1e-4)
+    assert float(grads[0][0].abs().max()) > 0 and float(grads[0][1].abs().max()) > 0
+
+
 def test_render_samples_only_inside_the_posed_box(skeleton, walk_poses):
     m = model(skeleton=skeleton)
     T = walk_poses[1]
