@@ -117,8 +117,9 @@ class HumanLossConfig:
     the opacity of a ``prior_step_m`` step (``1 - exp(-sigma step)``): ``cross_section_weight`` (the opacity
     unchanged by a turn about the point's bone in its cross-section, the trunk's ``trunk_aspect`` deep as wide;
     mean squared difference), ``symmetry_weight`` and ``symmetry_colour_weight`` (opacity and, weighted by it,
-    colour unchanged by the left/right mirror), ``unseen_colour_weight`` (the colour of points that faced no training
-    camera pulled towards the mean colour of their bone where seen, weighted by their opacity). And
+    colour unchanged by the left/right mirror), ``unseen_colour_weight`` (the colour of surface points that faced no
+    training camera pulled towards the mean colour of their bone's seen surface points; a point's surface weight is
+    its opacity times the transparency a ``prior_step_m`` further out from its bone). And
     ``opacity_entropy_weight``: the mean binary entropy (nats) of the batch rays' person opacity, against
     half-transparent people and floaters."""
 
@@ -543,6 +544,9 @@ class HumanTrainer(ResumableTrainer):
         pts, bone = sample_near_bones(bones, c.prior_points, c.prior_radius_m, g)
         n = pts.shape[0]
         sets = [pts]
+        normals = outward(pts, bone, bones)
+        if c.unseen_colour_weight > 0:  # a prior_step_m further out: the surface is where the body ends
+            sets.append(pts + c.prior_step_m * normals)
         if c.cross_section_weight > 0:
             sets.append(turn_cross_section(pts, bone, bones, 2.0 * torch.pi * torch.rand(n, generator=g)))
         if c.symmetry_weight > 0 or c.symmetry_colour_weight > 0:
@@ -552,6 +556,18 @@ class HumanTrainer(ResumableTrainer):
         a0, c0 = alpha[:n], rgb[:n]
         bone = bone.to(self.device)
         loss, terms, k = sigma.new_zeros(()), {}, 1
+        if c.unseen_colour_weight > 0:
+            surface = (a0 * (1.0 - alpha[n:2 * n])).detach()  # opaque here, clear just outside
+            seen = seen_fraction(pts.to(self.device), normals.to(self.device), bones.joint.to(self.device)[bone],
+                                 self.cameras_c)
+            w_seen = surface * (seen >= c.seen_min_fraction)
+            nb = bones.start.shape[0]
+            total = torch.zeros(nb, device=self.device).index_add(0, bone, w_seen)
+            mean = torch.zeros(nb, 3, device=self.device).index_add(0, bone, w_seen[:, None] * c0.detach())
+            mean = mean / total.clamp(min=1e-6)[:, None]
+            w = surface * (seen < c.seen_min_fraction) * (total[bone] > 1e-3)
+            term = (w[:, None] * (c0 - mean[bone]) ** 2).sum() / w.sum().clamp(min=1e-6)
+            loss, terms["unseen_colour"], k = loss + c.unseen_colour_weight * term, float(term.detach()), k + 1
         if c.cross_section_weight > 0:
             turned = sets[k].to(self.device)
             same = (nearest_bone(pts.to(self.device), bones)[0] == bone) & (nearest_bone(turned, bones)[0] == bone)
@@ -564,17 +580,6 @@ class HumanTrainer(ResumableTrainer):
             colour = torch.mean((a0 * am).detach()[:, None] * (c0 - cm) ** 2)
             loss = loss + c.symmetry_weight * term + c.symmetry_colour_weight * colour
             terms.update(symmetry=float(term.detach()), symmetry_colour=float(colour.detach()))
-        if c.unseen_colour_weight > 0:
-            p = pts.to(self.device)
-            seen = seen_fraction(p, outward(p, bone, bones), bones.joint.to(self.device)[bone], self.cameras_c)
-            w_seen = a0.detach() * (seen >= c.seen_min_fraction)
-            nb = bones.start.shape[0]
-            total = torch.zeros(nb, device=self.device).index_add(0, bone, w_seen)
-            mean = torch.zeros(nb, 3, device=self.device).index_add(0, bone, w_seen[:, None] * c0.detach())
-            mean = mean / total.clamp(min=1e-6)[:, None]
-            w = a0.detach() * (seen < c.seen_min_fraction) * (total[bone] > 1e-3)
-            term = (w[:, None] * (c0 - mean[bone]) ** 2).sum() / w.sum().clamp(min=1e-6)
-            loss, terms["unseen_colour"] = loss + c.unseen_colour_weight * term, float(term.detach())
         return loss, terms
 
     def image_loss(self, out, frames: Tensor, v: Tensor, u: Tensor) -> tuple[Tensor, Tensor, Tensor]:
