@@ -19,6 +19,7 @@ from nsim.human.motion import LocomotionLoop
 from nsim.human.moving_camera import (
     FOLLOWED_MAX_ADVANCE_M,
     KEYFRAME_FPS,
+    KEYFRAMES_ALL_UP_TO,
     MAX_INTERPOLATION_GAP_S,
     MAX_PATH_SCALE_ERROR,
     CameraPath,
@@ -32,6 +33,7 @@ from nsim.human.moving_camera import (
     metric_scale,
     metric_scale_error,
     place_landmarks_moving,
+    register_frames,
     rotation_between,
     rotation_path,
     speed_from_cadence,
@@ -236,22 +238,57 @@ def test_a_camera_that_follows_a_walker_is_told_moving_by_the_person():
 
 
 def test_keyframes_and_the_poses_between_them():
-    keys = keyframes(31, 16.0)
-    assert keys[0] == 0 and keys[-1] == 30 and set(np.diff(keys)[:-1]) == {round(16.0 / KEYFRAME_FPS)}
-    fast = keyframes(31, 16.0, motion_px=np.full(30, 10.0), width=400)  # 20 px (5 % of 400) every other frame
+    keys = keyframes(61, 16.0)
+    assert keys[0] == 0 and keys[-1] == 60 and set(np.diff(keys)) == {round(16.0 / KEYFRAME_FPS)}
+    fast = keyframes(61, 16.0, motion_px=np.full(60, 10.0), width=400)  # 20 px (5 % of 400) every other frame
     assert set(np.diff(fast)) == {2}
+    assert (keyframes(KEYFRAMES_ALL_UP_TO, 16.0) == np.arange(KEYFRAMES_ALL_UP_TO)).all()  # a short clip: all
+    keys = keys[:8]
     rng = np.random.default_rng(4)
     key_c2w = np.stack([look_at(rng.normal(size=3) + (0.0, -5.0, 0.0), (0.0, 0.0, 0.0)) for _ in keys])
     key_c2w[2] = np.nan  # not registered: its neighbours (8 frames = 0.5 s apart) are interpolated across
-    c2w = interpolate_path(keys, key_c2w, 31, 16.0)
+    c2w = interpolate_path(keys, key_c2w, 29, 16.0)
     np.testing.assert_allclose(c2w[keys[[0, 1, 3]]], key_c2w[[0, 1, 3]], atol=1e-9)
     mid = (keys[1] + keys[3]) // 2
     np.testing.assert_allclose(c2w[mid, :3, 3], 0.5 * (key_c2w[1, :3, 3] + key_c2w[3, :3, 3]), atol=1e-9)
     assert np.isfinite(c2w).all()
     key_c2w[1:5] = np.nan  # a gap longer than MAX_INTERPOLATION_GAP_S: its frames are not placed
     assert (keys[5] - keys[0]) / 16.0 > MAX_INTERPOLATION_GAP_S
-    c2w = interpolate_path(keys, key_c2w, 31, 16.0)
+    c2w = interpolate_path(keys, key_c2w, 29, 16.0)
     assert np.isnan(c2w[keys[0] + 1:keys[5]]).all() and np.isfinite(c2w[keys[5]:]).all()
+
+
+def test_frames_between_keyframes_are_placed_on_sfms_points():
+    import cv2
+
+    rng = np.random.default_rng(7)
+    cam = static_camera(320, 240, 65.0)
+    K = np.array([[cam.fx, 0.0, cam.cx], [0.0, cam.fy, cam.cy], [0.0, 0.0, 1.0]])
+    texture = cv2.resize((rng.uniform(0, 255, (100, 150)).repeat(6, 0).repeat(6, 1)).astype(np.uint8), (1500, 1000))
+    to_texture = np.array([[250.0, 0.0, 750.0], [0.0, 250.0, 500.0], [0.0, 0.0, 1.0]])  # the wall z = 4 m: 250 px/m
+    # a handheld camera drifting and wobbling in front of a textured wall
+    c2w = np.stack([look_at((0.1 * k, 0.06 * np.sin(2 * k), -0.03 * k), (0.1 * k + 0.05 * np.sin(2 * k), 0.0, 4.0),
+                            up=(0.0, -1.0, 0.0)) for k in range(5)])
+    frames = []
+    for T in c2w:
+        w2c = np.linalg.inv(T)
+        H = K @ np.column_stack([w2c[:3, 0], w2c[:3, 1], w2c[:3, 2] * 4.0 + w2c[:3, 3]]) @ np.linalg.inv(to_texture)
+        frames.append(np.stack([cv2.warpPerspective(texture, H, (320, 240))] * 3, axis=-1))
+    # SfM's points seen by keyframes 0 and 4: corners of the wall, where they are in those frames
+    seen = {}
+    for k in (0, 4):
+        grey = frames[k][..., 0]
+        uv = cv2.goodFeaturesToTrack(grey, 200, 0.01, 5).reshape(-1, 2).astype(np.float64)
+        rays = cam.unproject(uv) @ c2w[k][:3, :3].T
+        depth = (4.0 - c2w[k][2, 3]) / rays[:, 2]
+        seen[k] = (uv, c2w[k][:3, 3] + depth[:, None] * rays)
+    start = interpolate_path(np.array([0, 4]), c2w[[0, 4]], 5, 16.0)
+    got = register_frames(frames, cam, seen, start)
+    for k in (1, 2, 3):
+        assert np.linalg.norm(got[k][:3, 3] - c2w[k][:3, 3]) < 0.01
+        assert np.linalg.norm(start[k][:3, 3] - c2w[k][:3, 3]) > 0.02  # the interpolated pose was off
+        angle = np.degrees(np.arccos(np.clip((np.trace(got[k][:3, :3].T @ c2w[k][:3, :3]) - 1) / 2, -1, 1)))
+        assert angle < 0.1
 
 
 def test_a_camera_following_on_a_straight_line_takes_its_scale_from_the_steps():
