@@ -197,9 +197,9 @@ def test_installed_wheel_runs_outside_the_repository(wheel, tmp_path, run_cli):
     tiny = load_config(Config, stage="capture", preset="tiny")  # this checkout's nsim/configs/capture/tiny.yaml
     manifest = Store(ws).get(art_id).manifest
     assert manifest["kind"] == "capture"
-    expected = to_dict(tiny)  # the manifest leaves out the phone model while it is all defaults
+    expected = to_dict(tiny)  # the manifest leaves out the phone model while it is all defaults, and actor_view_deg
     assert manifest["config"] == {k: v for k, v in expected.items() if k in manifest["config"]}
-    assert set(expected) - set(manifest["config"]) <= {"phone"}
+    assert set(expected) - set(manifest["config"]) <= {"phone", "actor_view_deg"}
     assert manifest["summary"]["frames"] == tiny.n_frames
     # this checkout computes the same action key from its own preset: a cache hit on the installed run's artifact
     code, out, err = run_cli("capture", "synth", "--preset", "tiny", workspace=ws)

@@ -20,6 +20,7 @@ import hashlib
 import json
 import logging
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,9 +36,10 @@ CHECKPOINT_BVH_UNIT = "cm"
 """The unit ``train-human --video`` writes ``person.bvh`` in (``nsim.human.bvh.write_bvh``'s default)."""
 
 
-def resolve_motions(spec: ScenarioSpec, store, person_bvh: str) -> ScenarioSpec:
+def resolve_motions(spec: ScenarioSpec, store, person_bvh: Callable[[], str]) -> ScenarioSpec:
     """``spec`` with every ``{bvh: ...}`` and ``{from: ...}`` motion read and stored as a clip (the module docstring);
-    ``person_bvh``: a human checkpoint's file holding its fitted motion (``nsim.train.human_data_video.PERSON_BVH_FILE``)."""
+    ``person_bvh()``: the name of a human checkpoint's file holding its fitted motion
+    (``nsim.train.human_data_video.PERSON_BVH_FILE``), asked only for a ``{from: ...}`` motion."""
     clips: dict[int, tuple[MotionClip, str]] = {}
     read: dict[str, tuple[MotionClip, str]] = {}  # the same entry (file and settings, or checkpoint) read once
     for k, h in enumerate(spec.data["humans"]):
@@ -47,7 +49,7 @@ def resolve_motions(spec: ScenarioSpec, store, person_bvh: str) -> ScenarioSpec:
         key = json.dumps(motion, sort_keys=True)
         if key not in read:
             read[key] = (_bvh_clip(spec, k, motion) if "bvh" in motion
-                         else _checkpoint_clip(spec, k, motion["from"], store, person_bvh))
+                         else _checkpoint_clip(spec, k, motion["from"], store, person_bvh()))
         clips[k] = read[key]
     for clip, _ in read.values():
         if (stray := unsteadiness_m(clip)) > STEADY_TOLERANCE_M:

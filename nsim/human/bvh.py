@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from nsim.errors import InputError
 from nsim.human.motion import MotionClip
@@ -353,6 +352,8 @@ def _parse_bvh(text: str, path: str, unit: str | float, axes: str) -> BvhFile:
                   > 1e-4 * max(1.0, np.abs(joint.offset).max())) and joint.name not in ignored:
                 ignored.append(joint.name)
         if rot_axes:
+            from scipy.spatial.transform import Rotation  # on use: the CLI starts without scipy
+
             R_local[:, j] = Rotation.from_euler(rot_axes, data[:, rot_cols], degrees=True).as_matrix()
         col += len(joint.channels)
     if ignored:
@@ -454,6 +455,8 @@ def format_bvh(clip: MotionClip, unit: str = "cm", euler_order: str = "ZXY", axe
     F = clip.num_frames
     R = clip.rotation_matrices()[:, order_dfs]  # (F, J, 3, 3), nsim axes
     R_file = A.T @ R @ A
+    from scipy.spatial.transform import Rotation
+
     euler = Rotation.from_matrix(R_file.reshape(-1, 3, 3)).as_euler(order, degrees=True).reshape(F, -1)
     root = (clip.root_positions_m @ A) * inv_scale
     out += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / clip.fps:.9f}"]

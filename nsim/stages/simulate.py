@@ -70,7 +70,6 @@ from nsim.crowd.sensors import scene_sensors
 from nsim.crowd.social_force import ForceParams
 from nsim.crowd.sweep import SweepSpec
 from nsim.stages.runner import cached, device_kind, rerun
-from nsim.train.human_data_video import PERSON_BVH_FILE
 
 STAGE = "simulate"
 VERSION = 5  # 2: H.264, labelled frames; 3: HuNavSim metrics; 4: numbers rounded; 5: gait phase by each clip; run.mp4 the same
@@ -133,11 +132,17 @@ def resolve_scene(spec: ScenarioSpec, store=None) -> SceneMap:
     return SceneMap({"checkpoint": art_id}, *read_occupancy(occ, f"scene.checkpoint {ref!r}", spec.error))
 
 
+def _person_bvh_file() -> str:  # imported on use: the CLI answers without scipy or OpenCV
+    from nsim.train.human_data_video import PERSON_BVH_FILE
+
+    return PERSON_BVH_FILE
+
+
 def load_scenario(path: str | Path, store=None, robot_trajectory: str | None = None) -> Scenario:
     """Read, validate and resolve a scenario file (``store``: the workspace, for a scene checkpoint, a recording,
     a registration or a human checkpoint's motion; ``robot_trajectory``: ``--robot-trajectory``, see
     :func:`resolve_trajectory`; the people's BVH files and checkpoints' motions: :func:`resolve_motions`)."""
-    spec = resolve_motions(resolve_trajectory(read_scenario(path), store, robot_trajectory), store, PERSON_BVH_FILE)
+    spec = resolve_motions(resolve_trajectory(read_scenario(path), store, robot_trajectory), store, _person_bvh_file)
     return resolve_scenario(spec, resolve_scene(spec, store))
 
 

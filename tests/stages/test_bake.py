@@ -217,9 +217,11 @@ def test_spot_sensors_from_the_baked_scene(world, spot_run):
 @pytest.mark.parametrize("baked", ["baked/t", "baked/surface"])
 def test_ray_engine_renders_the_same_shards(world, spot_run, surface_bake, monkeypatch, baked):
     """The Ray engine (two workers) writes the local engine's files (a baked render, the grid's and the surface's,
-    as test_engine's for any)."""
+    as test_engine's for any), the run's people (the default look: the scenario's looks are not in this workspace)
+    and their instance masks included."""
     pytest.importorskip("ray")
     monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    from nsim.io.coco import read_instance_mask
     from nsim.io.exr import read_depth_exr
     from nsim.io.images import read_image
 
@@ -230,8 +232,12 @@ def test_ray_engine_renders_the_same_shards(world, spot_run, surface_bake, monke
     a, b = (world.get(world.resolve(f"render/spot-{e}-{name}")) for e in ("local", "ray"))
     files = sorted(p.relative_to(a.path) for p in a.path.rglob("*") if p.suffix in (".png", ".exr", ".ply"))
     assert any("lidar" in str(f) for f in files) and any("rgb" in str(f) for f in files)
+    masks = [f for f in files if f.parent.name == "mask"]
+    assert masks and any(read_instance_mask(a.path / m).any() for m in masks)  # someone is in view
     for rel in files:
-        if rel.suffix == ".png":
+        if rel in masks:
+            assert np.array_equal(read_instance_mask(a.path / rel), read_instance_mask(b.path / rel)), rel
+        elif rel.suffix == ".png":
             assert np.array_equal(read_image(a.path / rel), read_image(b.path / rel)), rel
         elif rel.suffix == ".ply" or "scan" in str(rel):
             assert (a.path / rel).read_bytes() == (b.path / rel).read_bytes(), rel
