@@ -45,9 +45,10 @@ from nsim.train.human import TrainHumanConfig
 from nsim.train.human_data_video import PERSON_BVH_FILE, PERSON_FIT_FILE, PersonSource, prepare_person_data
 
 STAGE = "train_human"
-VERSION = 4  # 2: held-out comparisons under a label strip (render | ground truth); 3: frames named after their
+VERSION = 5  # 2: held-out comparisons under a label strip (render | ground truth); 3: frames named after their
 #   images in eval.json, pose refinement (refine.*: poses_refined.json, pose_refinement.json)
 # 4: poses, trajectories and metrics written rounded (nsim.io.canonical: the same bytes on any CPU)
+# 5: --video: a following camera told moving by the person's steps, SfM on keyframes, new person_fit.json keys
 Config = TrainHumanConfig
 
 
