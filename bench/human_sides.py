@@ -18,6 +18,11 @@ Full run: 320x240 captures of 150 frames (bench/train_human.py's size), the ``de
 ``train_loop_s`` the training steps' share and ``held_out_fit_s`` the fit's. ``--quick``: 128x96 captures of 30 frames,
 the ``tiny`` preset (``train_s``). ``--set`` overrides the train-human preset (e.g. ``--set loss.symmetry_weight=0``).
 Prints a table; the last line is one JSON object (keys above, ``peak_rss_gb``: the process's peak resident memory).
+
+``--ratio N``: no training to the end; the preset and the default preset as it was before issue 45 (``OLD_DEFAULT``)
+are timed side by side on the front capture, N steps of each training phase interleaved, in CPU seconds
+(``speed_ratio``), and each one's stage time is estimated from its steps: keys ``old``, ``new``, ``ratio``. On a
+busy machine this is the number to trust (wall times there measure the other work too).
 """
 
 from __future__ import annotations
@@ -42,6 +47,10 @@ from nsim.stages import capture, train_human  # noqa: E402
 from nsim.workspace.store import Store  # noqa: E402
 
 SIDES = {"front": 0.0, "side": 90.0, "back": 180.0}  # actor_view_deg of each capture; training sees the front
+OLD_DEFAULT = [  # the default preset before issue 45, as overrides of today's (--ratio compares against it)
+    "optim.steps=2000", "model.samples_per_ray=40", "model.sample_bone_radius_m=null", "model.blend_background_m=0.2",
+    "refine.every=1", "refine.held_out_steps=400", "loss.cross_section_weight=0", "loss.unseen_colour_weight=0",
+]
 
 
 class _TrainTimes(logging.Handler):
@@ -85,6 +94,49 @@ def picture(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray
     return path
 
 
+def speed_ratio(data, cfg_old, cfg_new, steps: int, fit_steps: int) -> dict:
+    """Side by side in one process, interleaved step by step: the CPU seconds (``time.process_time``: what the
+    process itself used, so a busy machine's other work counts little; with one thread, the wall time of a quiet
+    core) of a training step before refinement starts and after (means over ``steps`` steps, the first of each
+    phase left out), of a held-out fit step and of one held-out frame's render, for the old and the new preset;
+    and each preset's estimated stage time from them (its steps in each phase, its held-out fit steps, its held-out
+    frames rendered once, twice with the fit). Returns both and new / old."""
+    from nsim.train import loop
+    from nsim.train.human import HumanTrainer
+
+    def fitting(cfg):
+        return dataclasses.replace(cfg, refine=dataclasses.replace(cfg.refine, held_out_steps=fit_steps))
+
+    trainers = [HumanTrainer(data, fitting(cfg)) for cfg in (cfg_old, cfg_new)]
+    seconds = [dict.fromkeys(("train", "refine", "fit", "render"), 0.0) for _ in trainers]
+    with loop.torch_threads(trainers[0].loop_threads()):
+        for phase in ("train", "refine"):
+            for t in trainers:
+                t.step = t.refine_start if phase == "refine" else 0
+            for k in range(steps + 1):
+                for t, sec in zip(trainers, seconds, strict=True):
+                    t0 = time.process_time()
+                    t.train_step()
+                    sec[phase] += (time.process_time() - t0) / steps if k else 0.0
+        view = int(trainers[0].eval_ids[0])
+        for t, sec in zip(trainers, seconds, strict=True):
+            t0 = time.process_time()
+            t.fit_held_out()
+            sec["fit"] = (time.process_time() - t0) / fit_steps
+            t0 = time.process_time()
+            t.render_view(view)
+            sec["render"] = time.process_time() - t0
+    out = {}
+    for name, cfg, sec in (("old", cfg_old, seconds[0]), ("new", cfg_new, seconds[1])):
+        start = int(round(cfg.refine.start_fraction * cfg.optim.steps)) if cfg.refine.lr > 0 else cfg.optim.steps
+        frames = len(trainers[0].eval_ids) * (2 if cfg.refine.held_out_steps > 0 else 1)
+        total = (start * sec["train"] + (cfg.optim.steps - start) * sec["refine"]
+                 + cfg.refine.held_out_steps * sec["fit"] + frames * sec["render"])
+        out[name] = {**{f"{k}_s": round(v, 3) for k, v in sec.items()}, "stage_estimate_s": round(total, 1)}
+    out["ratio"] = round(out["new"]["stage_estimate_s"] / out["old"]["stage_estimate_s"], 3)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -96,9 +148,13 @@ def main() -> None:
                     help="a train-human setting (repeatable)")
     ap.add_argument("--frames", type=int, default=None, help="frames per capture (default 150; 30 with --quick)")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "out" / "human_sides.png")
+    ap.add_argument("--ratio", type=int, default=0, metavar="N",
+                    help="only time the preset against the default before issue 45 (OLD_DEFAULT), N steps of each "
+                         "phase interleaved on the front capture, in CPU seconds (speed_ratio; 1 thread unless "
+                         "--threads), and print that")
     args = ap.parse_args()
     q = args.quick
-    threads = args.threads or (1 if q else 2)
+    threads = args.threads or (1 if q or args.ratio else 2)
     preset = args.preset or ("tiny" if q else "default")
     frames = args.frames or (30 if q else 150)
     size = ["width=128", "height=96"] if q else ["width=320", "height=240"]
@@ -113,9 +169,15 @@ def main() -> None:
         caps = {name: capture.run(capture.Inputs(), load_config(
             capture.Config, stage="capture", preset="default",
             overrides=["actor=true", "video=false", f"n_frames={frames}", f"actor_view_deg={deg:g}", *size]), ctx).capture
-            for name, deg in SIDES.items()}
+            for name, deg in SIDES.items() if name == "front" or not args.ratio}
         cap_s = time.perf_counter() - t0
         cfg = load_config(train_human.Config, stage="train_human", preset=preset, overrides=th_over)
+        if args.ratio:
+            old = load_config(train_human.Config, stage="train_human", preset="default", overrides=OLD_DEFAULT + th_over)
+            result = speed_ratio(train_human.load_data(store.get(caps["front"]).path), old, cfg, args.ratio,
+                                 max(2, args.ratio // 2))
+            print(json.dumps({"ratio_steps": args.ratio, "preset": preset, "frames": frames, **result}))
+            return
         t0 = time.perf_counter()
         out = train_human.run(train_human.Inputs(capture=caps["front"]), cfg, dataclasses.replace(ctx, force=True))
         train_s = time.perf_counter() - t0
